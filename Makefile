@@ -1,0 +1,47 @@
+# proden entry points. Each target is idempotent and does all of its own set-up on Debian 12
+# (dependencies via tools/install-deps.sh, configure, build).
+#   make build   install deps if missing, Release build into build/ (CLI at build/proden)
+#   make test    build, run the whole CTest suite, then the unit tests again under ASan+UBSan
+#   make run     build and run proden on the bundled samples
+.PHONY: build test run deps asan test-asan format clean
+
+BUILD_DIR ?= build
+ASAN_DIR  ?= build-asan
+JOBS      ?= $(shell nproc)
+WERROR    ?= ON
+OUT_DIR   ?= out
+
+deps:
+	@tools/install-deps.sh
+
+build: deps
+	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=Release -DPRODEN_WERROR=$(WERROR)
+	cmake --build $(BUILD_DIR) -j $(JOBS)
+
+test: build test-asan
+	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)
+
+asan: deps
+	cmake -S . -B $(ASAN_DIR) -DCMAKE_BUILD_TYPE=Debug -DPRODEN_SANITIZE=ON -DPRODEN_WERROR=$(WERROR) \
+	      -DPRODEN_BUILD_BENCH=OFF
+	cmake --build $(ASAN_DIR) -j $(JOBS) --target proden_unit_tests
+
+# The sanitizer configuration runs the unit tests (the CLI/integration tests run in the Release tree).
+test-asan: asan
+	cd $(ASAN_DIR) && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 \
+	  UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 ctest --output-on-failure -L unit -j $(JOBS)
+
+run: build
+	@mkdir -p $(OUT_DIR)
+	$(BUILD_DIR)/proden info samples/renders/cornell/pass_00.exr samples/renders/povray/pass_00.exr
+	$(BUILD_DIR)/proden denoise --aov --out $(OUT_DIR)/cornell.exr samples/renders/cornell/pass_*.exr
+	$(BUILD_DIR)/proden denoise --aov --out $(OUT_DIR)/textured_dof.exr samples/renders/textured_dof/pass_*.exr
+	$(BUILD_DIR)/proden eval --ref samples/renders/cornell/reference.exr \
+	    samples/renders/cornell/pass_00.exr $(OUT_DIR)/cornell.exr
+	@echo "outputs in $(OUT_DIR)/"
+
+format:
+	clang-format -i $$(git ls-files '*.cpp' '*.hpp')
+
+clean:
+	rm -rf $(BUILD_DIR) $(ASAN_DIR)
