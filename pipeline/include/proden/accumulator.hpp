@@ -1,0 +1,128 @@
+// Accumulated state of one frame: the running, spp-weighted statistics of all its passes, from
+// which the render x, its variance of the mean Var[x], the half buffers and feature means derive.
+//
+// Statistics (per pixel and channel, in double): passes alternate into half buffers A and B, each
+// keeping a weighted Welford mean and M2 = sum_k n_k (x_k - mean)^2 with weights n_k = spp. The
+// full frame is the exact (Chan) combination of the halves, so it costs no extra memory. With K
+// passes and N = sum n_k samples at a pixel, sigma^2 = M2 / (K - 1) is the unbiased per-sample
+// variance and Var[x] = sigma^2 / N (= s^2 / K for equal spp). Memory per pixel: see
+// bytes_per_pixel().
+//
+// Non-finite policy: a pass's pixel whose colour (or renderer variance) is NaN/Inf, or whose
+// variance is negative, is dropped from that pass (all channels, counted in AddResult and
+// dropped_samples()); the pixel then has fewer passes than the frame. Non-finite feature values
+// are sanitised (NaN -> 0, +-Inf -> +-1e10, Cycles' background depth) and counted.
+#pragma once
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "proden/image.hpp"
+#include "proden/pass.hpp"
+
+namespace proden {
+
+// Where a pixel's Var[x] came from.
+enum class VarianceSource {
+  between_passes,  // spread between K >= 2 passes
+  renderer,        // the passes' own variance channels
+  spatial,         // fallback for pixels with a single pass: 3x3 spread of the mean (biased up)
+};
+
+struct PassRecord {
+  std::string name;
+  double spp = 0.0;
+  int half = 0;                    // 0 = A, 1 = B
+  std::uint64_t fingerprint = 0;   // hash of the colour data, for duplicate detection
+  std::size_t dropped_pixels = 0;  // pixels whose sample was dropped (non-finite)
+  std::size_t sanitized_features = 0;
+};
+
+struct EstimateOptions {
+  bool halves = true;
+  bool features = true;
+};
+
+// Float snapshots of the accumulated statistics, ready for the pipeline stages.
+struct FrameEstimate {
+  Image mean;                          // x: spp-weighted mean, RGB
+  Image variance;                      // Var[x]: variance of the mean, RGB
+  std::array<Image, 2> half_mean;      // x_A, x_B (empty unless both halves hold passes)
+  std::array<Image, 2> half_variance;  // Var[x_A], Var[x_B]
+  Image albedo, normal, depth;         // feature means (empty where the frame has none)
+  Image albedo_variance, normal_variance, depth_variance;  // variance of the feature means
+  Image passes;  // 1 channel: passes that contributed to each pixel
+  VarianceSource variance_source = VarianceSource::between_passes;
+  std::size_t spatial_pixels = 0;  // pixels whose variance uses the spatial fallback
+  std::size_t hole_pixels = 0;     // pixels no pass contributed to (filled from neighbours)
+  // True when some variance is a spatial guess (a single pass, or holes): downstream error
+  // estimates are then less reliable.
+  bool low_confidence() const { return spatial_pixels > 0 || hole_pixels > 0; }
+};
+
+struct AddResult {
+  int pass_index = 0;
+  int half = 0;
+  std::size_t dropped_pixels = 0;
+  std::size_t sanitized_features = 0;
+};
+
+class FrameAccumulator {
+ public:
+  FrameAccumulator() = default;  // the first pass fixes size and layout
+
+  // Validates `pass` against the frame, changing nothing. Throws InputError (subject = name):
+  // size_mismatch, layout_mismatch, duplicate (bit-identical colour to an accepted, non-constant
+  // pass), invalid_value (bad spp, malformed planes).
+  void check(const Pass& pass, const std::string& name) const;
+
+  // check() then accumulate. Strong guarantee: if it throws, the state is unchanged.
+  AddResult add(const Pass& pass, const std::string& name);
+
+  bool empty() const { return history_.empty(); }
+  int width() const { return width_; }
+  int height() const { return height_; }
+  Layout layout() const { return layout_; }
+  int passes() const { return static_cast<int>(history_.size()); }
+  double total_spp() const;
+  const std::vector<PassRecord>& history() const { return history_; }
+  std::size_t dropped_samples() const;
+
+  // Bytes of accumulated state per pixel for a layout (the documented memory cost).
+  static std::size_t bytes_per_pixel(Layout layout);
+  std::size_t state_bytes() const;
+
+  FrameEstimate estimate(const EstimateOptions& options = {}) const;
+
+  // Digest of the whole state (statistics and history): equal digests <=> unchanged state.
+  std::uint64_t state_digest() const;
+
+ private:
+  struct Moments {  // weighted Welford accumulators, planar [c * pixels + p]
+    int channels = 0;
+    std::vector<double> mean;
+    std::vector<double> m2;
+    void reset(int ch, std::size_t pixels);
+  };
+  struct Half {
+    std::vector<double> weight;        // sum of spp per pixel
+    std::vector<std::uint32_t> count;  // passes per pixel
+    Moments colour;
+  };
+
+  void initialise(const Pass& pass);
+  std::size_t pixels() const { return static_cast<std::size_t>(width_) * height_; }
+
+  int width_ = 0;
+  int height_ = 0;
+  Layout layout_;
+  std::array<Half, 2> halves_;
+  Moments albedo_, normal_, depth_;
+  std::vector<double> renderer_variance_;  // sum_k n_k^2 var_k, planar RGB
+  std::vector<PassRecord> history_;
+};
+
+}  // namespace proden

@@ -1,0 +1,23 @@
+// Image error metrics over linear RGB against a reference (design.md §3): RMSE, relMSE, SMAPE.
+#pragma once
+
+#include <cstddef>
+
+#include "proden/image.hpp"
+
+namespace proden {
+
+struct ErrorMetrics {
+  double mse = 0.0;           // mean of (i - r)^2
+  double rmse = 0.0;          // sqrt(mse)
+  double relmse = 0.0;        // mean of (i - r)^2 / (r^2 + 0.01)
+  double smape = 0.0;         // mean of |i - r| / (|i| + |r| + 0.01)
+  std::size_t values = 0;     // channel values compared (finite in both images)
+  std::size_t nonfinite = 0;  // channel values skipped because either image was NaN/Inf there
+};
+
+// Compares the first three channels of `image` and `reference` (same size, >= 3 channels each;
+// throws std::invalid_argument otherwise). Non-finite values are counted, not averaged.
+ErrorMetrics compute_metrics(const Image& image, const Image& reference);
+
+}  // namespace proden

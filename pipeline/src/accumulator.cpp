@@ -1,0 +1,411 @@
+#include "proden/accumulator.hpp"
+
+#include <tbb/blocked_range.h>
+#include <tbb/combinable.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cfloat>
+#include <cmath>
+
+#include "proden/error.hpp"
+#include "proden/hash.hpp"
+
+namespace proden {
+namespace {
+
+constexpr std::size_t kGrain = 4096;  // pixels per parallel task
+constexpr double kFeatureInf = 1e10;  // what +-Inf features become (Cycles' background depth)
+
+float to_float(double v) {
+  return static_cast<float>(
+      std::clamp(v, -static_cast<double>(FLT_MAX), static_cast<double>(FLT_MAX)));
+}
+
+double sanitize_feature(float v, std::size_t& sanitized) {
+  if (std::isfinite(v)) return v;
+  ++sanitized;
+  if (std::isnan(v)) return 0.0;
+  return v > 0 ? kFeatureInf : -kFeatureInf;
+}
+
+bool is_constant(const Image& img) {
+  for (int c = 0; c < img.channels(); ++c) {
+    auto p = img.plane(c);
+    if (std::any_of(p.begin(), p.end(), [&](float v) {
+          return std::bit_cast<std::uint32_t>(v) != std::bit_cast<std::uint32_t>(p[0]);
+        })) {
+      return false;
+    }
+  }
+  return true;
+}
+
+std::uint64_t fingerprint(const Pass& pass) {
+  return hash_span(pass.colour.data(), 0x70726f64);
+}
+
+void check_plane(const Image& img, const Image& colour, int channels, const char* what,
+                 const std::string& name) {
+  if (img.empty()) return;
+  if (img.channels() != channels || !img.same_size(colour)) {
+    throw InputError(InputErrorKind::invalid_value, name,
+                     std::string(what) + " is " + img.to_string() + ", expected " +
+                         std::to_string(colour.width()) + "x" + std::to_string(colour.height()) +
+                         "x" + std::to_string(channels));
+  }
+}
+
+template <class F>
+void parallel_pixels(std::size_t n, F&& body) {
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, kGrain),
+                    [&](const tbb::blocked_range<std::size_t>& r) { body(r.begin(), r.end()); });
+}
+
+}  // namespace
+
+void FrameAccumulator::Moments::reset(int ch, std::size_t pixels) {
+  channels = ch;
+  mean.assign(pixels * static_cast<std::size_t>(ch), 0.0);
+  m2.assign(pixels * static_cast<std::size_t>(ch), 0.0);
+}
+
+double FrameAccumulator::total_spp() const {
+  double s = 0.0;
+  for (const auto& r : history_) s += r.spp;
+  return s;
+}
+
+std::size_t FrameAccumulator::dropped_samples() const {
+  std::size_t s = 0;
+  for (const auto& r : history_) s += r.dropped_pixels;
+  return s;
+}
+
+std::size_t FrameAccumulator::bytes_per_pixel(Layout layout) {
+  // Two halves: weight (double), pass count (uint32), RGB mean and M2 (double).
+  std::size_t b = 2 * (sizeof(double) + sizeof(std::uint32_t) + 3 * 2 * sizeof(double));
+  if (layout.albedo) b += 3 * 2 * sizeof(double);
+  if (layout.normal) b += 3 * 2 * sizeof(double);
+  if (layout.depth) b += 1 * 2 * sizeof(double);
+  if (layout.variance) b += 3 * sizeof(double);
+  return b;
+}
+
+std::size_t FrameAccumulator::state_bytes() const {
+  return bytes_per_pixel(layout_) * pixels();
+}
+
+void FrameAccumulator::check(const Pass& pass, const std::string& name) const {
+  if (!std::isfinite(pass.spp) || pass.spp <= 0.0) {
+    throw InputError(
+        InputErrorKind::invalid_value, name,
+        "samples per pixel must be a positive number, got " + std::to_string(pass.spp));
+  }
+  if (pass.colour.channels() != 3 || pass.colour.empty()) {
+    throw InputError(InputErrorKind::missing_channels, name,
+                     "colour must be a non-empty RGB image, got " + pass.colour.to_string());
+  }
+  check_plane(pass.albedo, pass.colour, 3, "albedo", name);
+  check_plane(pass.normal, pass.colour, 3, "normal", name);
+  check_plane(pass.depth, pass.colour, 1, "depth", name);
+  check_plane(pass.variance, pass.colour, 3, "variance", name);
+  if (empty()) return;
+
+  if (pass.width() != width_ || pass.height() != height_) {
+    throw InputError(InputErrorKind::size_mismatch, name,
+                     "resolution " + std::to_string(pass.width()) + "x" +
+                         std::to_string(pass.height()) + " differs from the frame's " +
+                         std::to_string(width_) + "x" + std::to_string(height_));
+  }
+  if (pass.layout() != layout_) {
+    throw InputError(InputErrorKind::layout_mismatch, name,
+                     "carries " + pass.layout().to_string() + " but the frame's passes carry " +
+                         layout_.to_string());
+  }
+  // A bit-identical pass repeats a seed: accepting it would shrink Var[x] and lie. A constant
+  // image (all black, a flat background) is legitimately identical between seeds, so it passes.
+  const std::uint64_t fp = fingerprint(pass);
+  for (const auto& r : history_) {
+    if (r.fingerprint == fp && !is_constant(pass.colour)) {
+      throw InputError(
+          InputErrorKind::duplicate, name,
+          "identical to the already accumulated pass '" + r.name + "' (same seed rendered twice?)");
+    }
+  }
+}
+
+void FrameAccumulator::initialise(const Pass& pass) {
+  // Build into locals first so an allocation failure leaves *this untouched.
+  const std::size_t n = static_cast<std::size_t>(pass.width()) * pass.height();
+  std::array<Half, 2> halves;
+  for (auto& h : halves) {
+    h.weight.assign(n, 0.0);
+    h.count.assign(n, 0);
+    h.colour.reset(3, n);
+  }
+  const Layout layout = pass.layout();
+  Moments albedo, normal, depth;
+  if (layout.albedo) albedo.reset(3, n);
+  if (layout.normal) normal.reset(3, n);
+  if (layout.depth) depth.reset(1, n);
+  std::vector<double> rv;
+  if (layout.variance) rv.assign(3 * n, 0.0);
+
+  width_ = pass.width();
+  height_ = pass.height();
+  layout_ = layout;
+  halves_ = std::move(halves);
+  albedo_ = std::move(albedo);
+  normal_ = std::move(normal);
+  depth_ = std::move(depth);
+  renderer_variance_ = std::move(rv);
+}
+
+AddResult FrameAccumulator::add(const Pass& pass, const std::string& name) {
+  check(pass, name);
+  PassRecord record;
+  record.name = name;
+  record.spp = pass.spp;
+  record.half = passes() % 2;
+  record.fingerprint = fingerprint(pass);
+  history_.reserve(history_.size() + 1);  // the only allocation that could fail after mutation
+  if (empty()) initialise(pass);
+
+  const std::size_t n = pixels();
+  Half& half = halves_[static_cast<std::size_t>(record.half)];
+  const Half& other = halves_[static_cast<std::size_t>(1 - record.half)];
+  const double w = pass.spp;
+  tbb::combinable<std::size_t> dropped_count([] { return std::size_t{0}; });
+  tbb::combinable<std::size_t> sanitized_count([] { return std::size_t{0}; });
+
+  auto update = [](Moments& m, int c, std::size_t p, std::size_t np, double x, double w_add,
+                   double w_new) {
+    const std::size_t i = static_cast<std::size_t>(c) * np + p;
+    const double delta = x - m.mean[i];
+    m.mean[i] += delta * (w_add / w_new);
+    m.m2[i] += w_add * delta * (x - m.mean[i]);
+  };
+
+  parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+    std::size_t dropped = 0;
+    std::size_t sanitized = 0;
+    for (std::size_t p = begin; p < end; ++p) {
+      bool ok = true;
+      for (int c = 0; c < 3; ++c) ok = ok && std::isfinite(pass.colour.plane(c)[p]);
+      if (layout_.variance) {
+        for (int c = 0; c < 3; ++c) {
+          const float v = pass.variance.plane(c)[p];
+          ok = ok && std::isfinite(v) && v >= 0.0f;
+        }
+      }
+      if (!ok) {
+        ++dropped;
+        continue;
+      }
+      const double w_total = half.weight[p] + other.weight[p] + w;
+      auto feature = [&](Moments& m, const Image& img) {
+        for (int c = 0; c < m.channels; ++c) {
+          update(m, c, p, n, sanitize_feature(img.plane(c)[p], sanitized), w, w_total);
+        }
+      };
+      if (layout_.albedo) feature(albedo_, pass.albedo);
+      if (layout_.normal) feature(normal_, pass.normal);
+      if (layout_.depth) feature(depth_, pass.depth);
+
+      const double w_half = half.weight[p] + w;
+      for (int c = 0; c < 3; ++c) update(half.colour, c, p, n, pass.colour.plane(c)[p], w, w_half);
+      half.weight[p] = w_half;
+      half.count[p] += 1;
+      if (layout_.variance) {
+        for (int c = 0; c < 3; ++c) {
+          renderer_variance_[static_cast<std::size_t>(c) * n + p] +=
+              w * w * static_cast<double>(pass.variance.plane(c)[p]);
+        }
+      }
+    }
+    dropped_count.local() += dropped;
+    sanitized_count.local() += sanitized;
+  });
+
+  record.dropped_pixels = dropped_count.combine(std::plus<>());
+  record.sanitized_features = sanitized_count.combine(std::plus<>());
+  history_.push_back(record);
+  return {passes() - 1, record.half, record.dropped_pixels, record.sanitized_features};
+}
+
+FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
+  FrameEstimate e;
+  if (empty()) return e;
+  const std::size_t n = pixels();
+  const Half& a = halves_[0];
+  const Half& b = halves_[1];
+  e.mean = Image(width_, height_, 3);
+  e.variance = Image(width_, height_, 3);
+  e.passes = Image(width_, height_, 1);
+  std::vector<unsigned char> spatial(n, 0), hole(n, 0);
+  std::vector<double> per_sample_var(3 * n, 0.0);  // sigma^2, for the half buffers
+
+  parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+    for (std::size_t p = begin; p < end; ++p) {
+      const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
+      const std::uint32_t k = a.count[p] + b.count[p];
+      e.passes.plane(0)[p] = static_cast<float>(k);
+      if (w <= 0.0) {
+        hole[p] = 1;
+        continue;
+      }
+      for (int c = 0; c < 3; ++c) {
+        const std::size_t i = static_cast<std::size_t>(c) * n + p;
+        const double ma = a.colour.mean[i], mb = b.colour.mean[i];
+        const double mean = (wa * ma + wb * mb) / w;
+        const double d = ma - mb;
+        const double m2 = a.colour.m2[i] + b.colour.m2[i] + d * d * (wa * wb / w);
+        double var = 0.0;
+        if (layout_.variance) {
+          var = renderer_variance_[i] / (w * w);
+        } else if (k >= 2) {
+          var = std::max(m2, 0.0) / (k - 1) / w;
+        } else {
+          spatial[p] = 1;
+        }
+        e.mean.plane(c)[p] = to_float(mean);
+        e.variance.plane(c)[p] = to_float(var);
+        per_sample_var[i] = var * w;
+      }
+    }
+  });
+
+  // Holes (every pass dropped this pixel): fill the mean from valid neighbours, then treat the
+  // pixel like a single-pass one. Rare, so serial.
+  for (int y = 0; y < height_; ++y) {
+    for (int x = 0; x < width_; ++x) {
+      const std::size_t p = static_cast<std::size_t>(y) * width_ + x;
+      if (!hole[p]) continue;
+      ++e.hole_pixels;
+      spatial[p] = 1;
+      for (int c = 0; c < 3; ++c) {
+        double sum = 0.0;
+        int cnt = 0;
+        for (int dy = -1; dy <= 1; ++dy) {
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int xx = x + dx, yy = y + dy;
+            if (xx < 0 || yy < 0 || xx >= width_ || yy >= height_) continue;
+            const std::size_t q = static_cast<std::size_t>(yy) * width_ + xx;
+            if (hole[q]) continue;
+            sum += e.mean.plane(c)[q];
+            ++cnt;
+          }
+        }
+        e.mean.plane(c)[p] = cnt > 0 ? to_float(sum / cnt) : 0.0f;
+      }
+    }
+  }
+
+  // Spatial fallback: the unbiased spread of the 3x3 neighbourhood of the mean estimates the
+  // variance of one pixel's value (edges and texture make it an over-estimate: conservative).
+  for (int y = 0; y < height_; ++y) {
+    for (int x = 0; x < width_; ++x) {
+      const std::size_t p = static_cast<std::size_t>(y) * width_ + x;
+      if (!spatial[p]) continue;
+      ++e.spatial_pixels;
+      const double w = a.weight[p] + b.weight[p];
+      for (int c = 0; c < 3; ++c) {
+        double s1 = 0.0, s2 = 0.0;
+        int cnt = 0;
+        for (int dy = -1; dy <= 1; ++dy) {
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int xx = x + dx, yy = y + dy;
+            if (xx < 0 || yy < 0 || xx >= width_ || yy >= height_) continue;
+            const double v = e.mean.at(xx, yy, c);
+            s1 += v;
+            s2 += v * v;
+            ++cnt;
+          }
+        }
+        const double m = e.mean.plane(c)[p];
+        double var = m * m;  // a lone pixel (1x1 frame): assume 100 % relative error
+        if (cnt >= 2) var = std::max(0.0, (s2 - s1 * s1 / cnt) / (cnt - 1));
+        e.variance.plane(c)[p] = to_float(var);
+        per_sample_var[static_cast<std::size_t>(c) * n + p] = var * (w > 0.0 ? w : 1.0);
+      }
+    }
+  }
+
+  if (layout_.variance) {
+    e.variance_source = VarianceSource::renderer;
+  } else if (e.spatial_pixels == n) {
+    e.variance_source = VarianceSource::spatial;
+  } else {
+    e.variance_source = VarianceSource::between_passes;
+  }
+
+  if (options.halves && passes() >= 2) {
+    for (std::size_t h = 0; h < 2; ++h) {
+      e.half_mean[h] = Image(width_, height_, 3);
+      e.half_variance[h] = Image(width_, height_, 3);
+      const Half& half = halves_[h];
+      parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+        for (std::size_t p = begin; p < end; ++p) {
+          for (int c = 0; c < 3; ++c) {
+            const std::size_t i = static_cast<std::size_t>(c) * n + p;
+            // A half without a sample here (non-finite drops) falls back to the full estimate.
+            const bool has = half.weight[p] > 0.0;
+            e.half_mean[h].plane(c)[p] = has ? to_float(half.colour.mean[i]) : e.mean.plane(c)[p];
+            e.half_variance[h].plane(c)[p] =
+                has ? to_float(per_sample_var[i] / half.weight[p]) : e.variance.plane(c)[p];
+          }
+        }
+      });
+    }
+  }
+
+  if (options.features) {
+    auto features = [&](const Moments& m, Image& mean, Image& var) {
+      if (m.channels == 0) return;
+      mean = Image(width_, height_, m.channels);
+      var = Image(width_, height_, m.channels);
+      parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+        for (std::size_t p = begin; p < end; ++p) {
+          const double w = a.weight[p] + b.weight[p];
+          const std::uint32_t k = a.count[p] + b.count[p];
+          for (int c = 0; c < m.channels; ++c) {
+            const std::size_t i = static_cast<std::size_t>(c) * n + p;
+            mean.plane(c)[p] = to_float(m.mean[i]);
+            var.plane(c)[p] = k >= 2 ? to_float(std::max(m.m2[i], 0.0) / (k - 1) / w) : 0.0f;
+          }
+        }
+      });
+    };
+    features(albedo_, e.albedo, e.albedo_variance);
+    features(normal_, e.normal, e.normal_variance);
+    features(depth_, e.depth, e.depth_variance);
+  }
+  return e;
+}
+
+std::uint64_t FrameAccumulator::state_digest() const {
+  std::uint64_t h = hash_span(std::span<const int>(&width_, 1), 1);
+  h = hash_span(std::span<const int>(&height_, 1), h);
+  auto add = [&h](const auto& v) { h = hash_span(std::span(v.data(), v.size()), h); };
+  for (const auto& half : halves_) {
+    add(half.weight);
+    add(half.count);
+    add(half.colour.mean);
+    add(half.colour.m2);
+  }
+  for (const Moments* m : {&albedo_, &normal_, &depth_}) {
+    add(m->mean);
+    add(m->m2);
+  }
+  add(renderer_variance_);
+  for (const auto& r : history_) {
+    add(r.name);
+    const double fields[] = {r.spp, static_cast<double>(r.half), static_cast<double>(r.fingerprint),
+                             static_cast<double>(r.dropped_pixels)};
+    h = hash_span(std::span<const double>(fields), h);
+  }
+  return h;
+}
+
+}  // namespace proden
