@@ -1,0 +1,35 @@
+// Renderer profiles: how a renderer names a pass's channels and header attributes, and the
+// auto-detection that picks a profile for a file (Blender Cycles multilayer EXR, POV-Ray, generic).
+#pragma once
+
+#include <optional>
+#include <span>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace proden::io {
+
+enum class Renderer { automatic, cycles, povray, generic };
+
+std::string_view to_string(Renderer r);
+// Parses "auto", "cycles", "povray", "generic"; nullopt otherwise.
+std::optional<Renderer> parse_renderer(std::string_view s);
+
+// Channel names a profile maps to proden's inputs; alternatives are tried in order.
+struct ChannelMap {
+  Renderer renderer = Renderer::generic;
+  std::string layer;  // e.g. Blender's view layer "ViewLayer" (empty for generic)
+  std::vector<std::vector<std::string>> colour, albedo, normal, depth, variance;  // per channel
+  std::string spp_attribute;          // header attribute carrying samples per pixel, if any
+  std::string render_time_attribute;  // header attribute carrying render time, if any
+};
+
+// Picks the profile for a file with these channel names and header-attribute values.
+// `forced` != automatic selects a profile explicitly. Returns nullopt if the colour channels of
+// the (detected or forced) profile are absent.
+std::optional<ChannelMap> detect_profile(std::span<const std::string> channels,
+                                         std::span<const std::string> attribute_values,
+                                         Renderer forced);
+
+}  // namespace proden::io
