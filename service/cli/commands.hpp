@@ -1,0 +1,53 @@
+// The CLI's commands as functions over parsed options, so tests and the daemon can call them.
+// Each returns a process exit code (see ExitCode).
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "proden/io/profile.hpp"
+
+namespace proden::cli {
+
+enum ExitCode : int {
+  kOk = 0,
+  kInternalError = 1,  // a bug or an environment failure (cannot write output, out of memory)
+  kUsage = 2,          // bad command line
+  kBadInput = 3,       // some input file was rejected (the rest was still processed)
+};
+
+struct InputOptions {
+  io::Renderer renderer = io::Renderer::automatic;
+  std::optional<double> spp;
+  bool features = true;
+};
+
+struct DenoiseOptions {
+  InputOptions input;
+  std::vector<std::string> passes;
+  std::string out;
+  bool aov = false;
+  bool half = false;
+  bool json = false;
+  bool progress = true;
+};
+
+struct EvalOptions {
+  InputOptions input;
+  std::vector<std::string> references;  // several = passes of a reference, averaged
+  std::vector<std::string> images;
+  bool json = false;
+};
+
+struct InfoOptions {
+  InputOptions input;
+  std::vector<std::string> files;
+  bool json = false;
+};
+
+int run_denoise(const DenoiseOptions& o);
+int run_eval(const EvalOptions& o);
+int run_info(const InfoOptions& o);
+
+}  // namespace proden::cli

@@ -1,0 +1,276 @@
+// End-to-end tests of the `proden` binary on the committed real renders. Values are checked
+// against an independent computation: passes and outputs read with OpenEXR's own API (not OIIO,
+// which proden uses) and statistics computed with a plain two-pass formula in double.
+#include <ImfChannelList.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfInputFile.h>
+#include <sys/wait.h>
+
+#include <algorithm>
+#include <array>
+#include <catch2/catch.hpp>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+using Catch::Matchers::Contains;
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Run {
+  int code = -1;
+  std::string out, err;
+};
+
+struct Scratch {
+  fs::path dir;
+  Scratch() {
+    dir = fs::temp_directory_path() / ("proden-cli-" + std::to_string(std::random_device{}()));
+    fs::create_directories(dir);
+  }
+  ~Scratch() {
+    std::error_code ec;
+    fs::remove_all(dir, ec);
+  }
+  std::string file(const std::string& n) const { return (dir / n).string(); }
+};
+
+Run proden(const std::string& args, const Scratch& s) {
+  const std::string errf = s.file("stderr.txt");
+  const std::string cmd = std::string(PRODEN_BINARY) + " " + args + " 2>" + errf;
+  Run r;
+  FILE* p = ::popen(cmd.c_str(), "r");
+  REQUIRE(p);
+  std::array<char, 4096> buf{};
+  std::size_t n;
+  while ((n = std::fread(buf.data(), 1, buf.size(), p)) > 0) r.out.append(buf.data(), n);
+  const int status = ::pclose(p);
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream e(errf);
+  std::stringstream ss;
+  ss << e.rdbuf();
+  r.err = ss.str();
+  return r;
+}
+
+std::string sample(const std::string& rel) {
+  return std::string(PRODEN_SAMPLES_DIR) + "/" + rel;
+}
+
+std::vector<std::string> passes(const std::string& set) {
+  std::vector<std::string> v;
+  for (int k = 0; k < 8; ++k) {
+    char name[32];
+    std::snprintf(name, sizeof name, "/pass_%02d.exr", k);
+    v.push_back(sample("renders/" + set + name));
+  }
+  return v;
+}
+
+std::string join(const std::vector<std::string>& v) {
+  std::string s;
+  for (const auto& x : v) s += " " + x;
+  return s;
+}
+
+// Reads named channels with OpenEXR as float planes.
+std::vector<std::vector<float>> read_exr(const std::string& path,
+                                         const std::vector<std::string>& names, int* w, int* h) {
+  Imf::InputFile in(path.c_str());
+  const Imath::Box2i dw = in.header().dataWindow();
+  *w = dw.max.x - dw.min.x + 1;
+  *h = dw.max.y - dw.min.y + 1;
+  const std::size_t n = static_cast<std::size_t>(*w) * static_cast<std::size_t>(*h);
+  std::vector<std::vector<float>> planes(names.size(), std::vector<float>(n));
+  Imf::FrameBuffer fb;
+  for (std::size_t c = 0; c < names.size(); ++c) {
+    REQUIRE(in.header().channels().findChannel(names[c].c_str()) != nullptr);
+    char* base =
+        reinterpret_cast<char*>(planes[c].data()) -
+        (static_cast<std::ptrdiff_t>(dw.min.x) + static_cast<std::ptrdiff_t>(dw.min.y) * *w) *
+            static_cast<std::ptrdiff_t>(sizeof(float));
+    fb.insert(names[c].c_str(), Imf::Slice(Imf::FLOAT, base, sizeof(float),
+                                           sizeof(float) * static_cast<std::size_t>(*w)));
+  }
+  in.setFrameBuffer(fb);
+  in.readPixels(dw.min.y, dw.max.y);
+  return planes;
+}
+
+const std::vector<std::string> kCombined = {"ViewLayer.Combined.R", "ViewLayer.Combined.G",
+                                            "ViewLayer.Combined.B"};
+
+// Independent mean and variance of the mean over equal-spp passes.
+void check_against_independent(const std::string& set, const std::string& out) {
+  const auto files = passes(set);
+  int w = 0, h = 0;
+  std::vector<std::vector<std::vector<float>>> data;
+  for (const auto& f : files) data.push_back(read_exr(f, kCombined, &w, &h));
+  int ow = 0, oh = 0;
+  const auto render = read_exr(out, {"render.R", "render.G", "render.B"}, &ow, &oh);
+  const auto var = read_exr(out, {"variance.R", "variance.G", "variance.B"}, &ow, &oh);
+  const auto result = read_exr(out, {"R", "G", "B"}, &ow, &oh);
+  REQUIRE(ow == w);
+  REQUIRE(oh == h);
+  const double K = static_cast<double>(files.size());
+  double worst_mean = 0, worst_var = 0;
+  for (int c = 0; c < 3; ++c) {
+    for (std::size_t p = 0; p < render[static_cast<std::size_t>(c)].size(); ++p) {
+      double m = 0;
+      for (const auto& d : data) m += d[static_cast<std::size_t>(c)][p];
+      m /= K;
+      double s2 = 0;
+      for (const auto& d : data) {
+        const double e = d[static_cast<std::size_t>(c)][p] - m;
+        s2 += e * e;
+      }
+      const double v = s2 / (K - 1) / K;
+      const double got_m = render[static_cast<std::size_t>(c)][p];
+      const double got_v = var[static_cast<std::size_t>(c)][p];
+      worst_mean = std::max(worst_mean, std::abs(got_m - m) / std::max(std::abs(m), 1e-6));
+      worst_var = std::max(worst_var, std::abs(got_v - v) / std::max(v, 1e-12));
+      REQUIRE(result[static_cast<std::size_t>(c)][p] == render[static_cast<std::size_t>(c)][p]);
+    }
+  }
+  INFO("worst relative error: mean " << worst_mean << ", variance " << worst_var);
+  CHECK(worst_mean < 1e-5);
+  CHECK(worst_var < 1e-4);
+}
+
+}  // namespace
+
+TEST_CASE(
+    "denoise --aov on real Cycles passes writes render.* and variance.* that match an "
+    "independent computation",
+    "[cli][real]") {
+  Scratch s;
+  for (const std::string set : {"cornell", "textured_dof"}) {
+    const std::string out = s.file(set + ".exr");
+    const Run r = proden("denoise --quiet --aov --json --out " + out + join(passes(set)), s);
+    INFO(r.err);
+    REQUIRE(r.code == 0);
+    const auto j = nlohmann::json::parse(r.out);
+    CHECK(j["pass_count"] == 8);
+    CHECK(j["spp"] == 32.0);
+    CHECK(j["layout"]["name"] == "HDR+ALB+NRM+DEP");
+    CHECK(j["variance_source"] == "between_passes");
+    CHECK(j["low_confidence"] == false);
+    check_against_independent(set, out);
+  }
+}
+
+TEST_CASE("denoise --half writes half floats and --no-features reports HDR only", "[cli]") {
+  Scratch s;
+  const std::string out = s.file("h.exr");
+  const Run r =
+      proden("denoise -q --half --no-features --json --out " + out + join(passes("cornell")), s);
+  REQUIRE(r.code == 0);
+  CHECK(nlohmann::json::parse(r.out)["layout"]["name"] == "HDR");
+  Imf::InputFile in(out.c_str());
+  const Imf::Channel* ch = in.header().channels().findChannel("R");
+  REQUIRE(ch);
+  CHECK(ch->type == Imf::HALF);
+  CHECK(in.header().channels().findChannel("render.R") == nullptr);  // no --aov
+}
+
+TEST_CASE("eval agrees with metrics computed independently", "[cli][real]") {
+  Scratch s;
+  const std::string ref = sample("renders/cornell/reference.exr");
+  const std::string img = sample("renders/cornell/pass_03.exr");
+  const Run r = proden("eval --json --ref " + ref + " " + img, s);
+  INFO(r.err);
+  REQUIRE(r.code == 0);
+  const auto j = nlohmann::json::parse(r.out);
+  REQUIRE(j["results"].size() == 1);
+  int w, h;
+  const auto a = read_exr(img, kCombined, &w, &h);
+  const auto b = read_exr(ref, kCombined, &w, &h);
+  double se = 0, rel = 0, sm = 0, n = 0;
+  for (std::size_t c = 0; c < 3; ++c) {
+    for (std::size_t p = 0; p < a[c].size(); ++p) {
+      const double i = a[c][p], t = b[c][p], d = i - t;
+      se += d * d;
+      rel += d * d / (t * t + 0.01);
+      sm += std::abs(d) / (std::abs(i) + std::abs(t) + 0.01);
+      ++n;
+    }
+  }
+  const auto& m = j["results"][0];
+  CHECK(m["rmse"].get<double>() == Approx(std::sqrt(se / n)).epsilon(1e-9));
+  CHECK(m["relmse"].get<double>() == Approx(rel / n).epsilon(1e-9));
+  CHECK(m["smape"].get<double>() == Approx(sm / n).epsilon(1e-9));
+  // The table form prints the same image and a header.
+  const Run t = proden("eval --ref " + ref + " " + img, s);
+  CHECK(t.code == 0);
+  CHECK_THAT(t.out, Contains("RMSE") && Contains("pass_03.exr"));
+}
+
+TEST_CASE("eval: the accumulated render beats a single pass and a reference made of passes works",
+          "[cli][real]") {
+  Scratch s;
+  const std::string out = s.file("acc.exr");
+  REQUIRE(proden("denoise -q --out " + out + join(passes("cornell")), s).code == 0);
+  const Run r = proden("eval --json --ref " + sample("renders/cornell/reference.exr") + " " +
+                           sample("renders/cornell/pass_00.exr") + " " + out,
+                       s);
+  REQUIRE(r.code == 0);
+  const auto j = nlohmann::json::parse(r.out);
+  // 8 passes: RMSE should fall by about sqrt(8); require at least 2x.
+  CHECK(j["results"][1]["rmse"].get<double>() * 2 < j["results"][0]["rmse"].get<double>());
+  // Reference given as passes: their mean.
+  const auto ps = passes("cornell");
+  const Run r2 = proden("eval --json --ref " + ps[0] + " --ref " + ps[1] + " " + ps[0], s);
+  REQUIRE(r2.code == 0);
+  CHECK(nlohmann::json::parse(r2.out)["results"][0]["rmse"].get<double>() > 0);
+}
+
+TEST_CASE("info reports renderer, size, channels and spp", "[cli][real]") {
+  Scratch s;
+  const Run r = proden("info --json " + sample("renders/cornell/pass_00.exr") + " " +
+                           sample("renders/povray/pass_00.exr"),
+                       s);
+  INFO(r.err);
+  REQUIRE(r.code == 0);
+  const auto j = nlohmann::json::parse(r.out);
+  CHECK(j[0]["renderer"] == "cycles");
+  CHECK(j[0]["spp"] == 4.0);
+  CHECK(j[0]["spp_source"] == "header");
+  CHECK(j[0]["width"] == 128);
+  CHECK(j[1]["renderer"] == "povray");
+  const Run t = proden("info " + sample("renders/cornell/pass_00.exr"), s);
+  CHECK_THAT(t.out, Contains("cycles") && Contains("128x128") && Contains("HDR+ALB+NRM+DEP"));
+}
+
+TEST_CASE("bad input: named in the error, exit code 3, the rest still processed", "[cli]") {
+  Scratch s;
+  const std::string placeholder = s.file("placeholder.exr");
+  std::ofstream(placeholder).close();
+  const auto ps = passes("cornell");
+  const std::string out = s.file("o.exr");
+  const Run r = proden("denoise -q --json --out " + out + " " + ps[0] + " " + placeholder + " " +
+                           ps[1] + " " + ps[1],
+                       s);
+  CHECK(r.code == 3);
+  CHECK_THAT(r.err, Contains(placeholder) && Contains("empty file"));
+  CHECK_THAT(r.err, Contains("identical to the already accumulated pass"));
+  REQUIRE(fs::exists(out));
+  CHECK(nlohmann::json::parse(r.out)["pass_count"] == 2);
+
+  const std::string out2 = s.file("none.exr");
+  const Run none = proden("denoise -q --out " + out2 + " " + s.file("missing.exr"), s);
+  CHECK(none.code == 3);
+  CHECK_THAT(none.err, Contains("missing.exr") && Contains("no such file"));
+  CHECK_FALSE(fs::exists(out2));
+
+  const Run usage = proden("denoise " + ps[0], s);  // --out missing
+  CHECK(usage.code == 2);
+  CHECK(proden("frobnicate", s).code == 2);
+}

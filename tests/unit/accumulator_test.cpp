@@ -1,0 +1,312 @@
+// Accumulator statistics against closed forms, and its non-finite and fallback policies.
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
+
+#include "proden/accumulator.hpp"
+#include "proden/error.hpp"
+#include "test_support.hpp"
+
+using namespace proden;
+using Catch::Matchers::Contains;
+
+namespace {
+
+Pass constant_pass(int w, int h, double spp, float r, float g, float b) {
+  Pass p;
+  p.spp = spp;
+  p.colour = Image(w, h, 3);
+  for (auto& v : p.colour.plane(0)) v = r;
+  for (auto& v : p.colour.plane(1)) v = g;
+  for (auto& v : p.colour.plane(2)) v = b;
+  return p;
+}
+
+// Direct two-pass computation of the spp-weighted mean and variance of the mean.
+struct Direct {
+  double mean, var;
+};
+Direct direct(const std::vector<double>& x, const std::vector<double>& n) {
+  double N = 0, s = 0;
+  for (std::size_t k = 0; k < x.size(); ++k) {
+    N += n[k];
+    s += n[k] * x[k];
+  }
+  const double mean = s / N;
+  double m2 = 0;
+  for (std::size_t k = 0; k < x.size(); ++k) m2 += n[k] * (x[k] - mean) * (x[k] - mean);
+  return {mean, m2 / static_cast<double>(x.size() - 1) / N};
+}
+
+}  // namespace
+
+TEST_CASE("equal spp: mean and unbiased variance of the mean match the closed form",
+          "[accumulator]") {
+  const std::vector<double> xs = {0.25, 0.5, 1.0, 0.125, 2.0};
+  FrameAccumulator f;
+  for (std::size_t k = 0; k < xs.size(); ++k) {
+    const float v = static_cast<float>(xs[k]);
+    f.add(constant_pass(4, 3, 8, v, 2 * v, 3 * v), "p" + std::to_string(k));
+  }
+  // s^2 / K with the unbiased sample variance s^2.
+  double mean = 0;
+  for (double x : xs) mean += x;
+  mean /= 5;
+  double s2 = 0;
+  for (double x : xs) s2 += (x - mean) * (x - mean);
+  s2 /= 4;
+  const FrameEstimate e = f.estimate();
+  REQUIRE(e.variance_source == VarianceSource::between_passes);
+  REQUIRE_FALSE(e.low_confidence());
+  for (int c = 0; c < 3; ++c) {
+    const double k = c + 1;
+    CHECK(e.mean.at(2, 1, c) == Approx(k * mean).epsilon(1e-6));
+    CHECK(e.variance.at(2, 1, c) == Approx(k * k * s2 / 5).epsilon(1e-6));
+  }
+  CHECK(f.passes() == 5);
+  CHECK(f.total_spp() == 40);
+  CHECK(e.passes.at(0, 0, 0) == 5.0f);
+}
+
+TEST_CASE("unequal spp: spp-weighted mean and variance of the mean", "[accumulator]") {
+  const std::vector<double> xs = {0.3, 0.9, 0.5, 0.65};
+  const std::vector<double> ns = {1, 2, 4, 8};
+  FrameAccumulator f;
+  for (std::size_t k = 0; k < xs.size(); ++k) {
+    const float v = static_cast<float>(xs[k]);
+    f.add(constant_pass(2, 2, ns[k], v, v, v), "p" + std::to_string(k));
+  }
+  // What float inputs really were.
+  std::vector<double> xf;
+  for (double x : xs) xf.push_back(static_cast<float>(x));
+  const Direct d = direct(xf, ns);
+  const FrameEstimate e = f.estimate();
+  CHECK(e.mean.at(1, 1, 0) == Approx(d.mean).epsilon(1e-6));
+  CHECK(e.variance.at(1, 1, 0) == Approx(d.var).epsilon(1e-6));
+}
+
+TEST_CASE("variance of the mean is unbiased for Gaussian passes of unequal spp", "[accumulator]") {
+  // Pass k's pixel mean ~ N(mu, sigma^2 / n_k); the estimator's mean over 3*128*128 values must
+  // match sigma^2 / N, and so must the squared error of the accumulated mean.
+  const int w = 128, h = 128;
+  const double sigma = 0.5, mu = 1.0;
+  const std::vector<double> ns = {1, 3, 2, 6};
+  const double N = 12;
+  std::mt19937_64 rng(7);
+  FrameAccumulator f;
+  for (std::size_t k = 0; k < ns.size(); ++k) {
+    std::normal_distribution<double> g(mu, sigma / std::sqrt(ns[k]));
+    Pass p;
+    p.spp = ns[k];
+    p.colour = Image(w, h, 3);
+    for (auto& v : p.colour.data()) v = static_cast<float>(g(rng));
+    f.add(p, "g" + std::to_string(k));
+  }
+  const FrameEstimate e = f.estimate();
+  double mean_var = 0, mean_se = 0;
+  for (int c = 0; c < 3; ++c) {
+    for (std::size_t i = 0; i < e.mean.pixels(); ++i) {
+      mean_var += e.variance.plane(c)[i];
+      const double d = e.mean.plane(c)[i] - mu;
+      mean_se += d * d;
+    }
+  }
+  const double count = 3.0 * w * h;
+  mean_var /= count;
+  mean_se /= count;
+  const double truth = sigma * sigma / N;
+  // Relative standard errors: ~0.0018 (variance estimator, 3 dof) and ~0.0032 (squared error).
+  CHECK(mean_var == Approx(truth).epsilon(0.01));
+  CHECK(mean_se == Approx(truth).epsilon(0.015));
+}
+
+TEST_CASE("half buffers alternate passes and carry their own statistics", "[accumulator]") {
+  FrameAccumulator f;
+  const std::vector<float> xs = {1, 2, 3, 4, 5, 7};
+  for (std::size_t k = 0; k < xs.size(); ++k) {
+    f.add(constant_pass(3, 3, 2, xs[k], xs[k], xs[k]), "p" + std::to_string(k));
+  }
+  CHECK(f.history()[0].half == 0);
+  CHECK(f.history()[1].half == 1);
+  CHECK(f.history()[4].half == 0);
+  const FrameEstimate e = f.estimate();
+  REQUIRE_FALSE(e.half_mean[0].empty());
+  CHECK(e.half_mean[0].at(1, 1, 0) == Approx((1 + 3 + 5) / 3.0));
+  CHECK(e.half_mean[1].at(1, 1, 0) == Approx((2 + 4 + 7) / 3.0));
+  // Var[x_h] = sigma^2 / N_h with the pooled per-sample variance: twice Var[x] for equal halves.
+  CHECK(e.half_variance[0].at(1, 1, 0) == Approx(2 * e.variance.at(1, 1, 0)).epsilon(1e-6));
+}
+
+TEST_CASE("feature means and renderer variance accumulate with spp weights", "[accumulator]") {
+  Layout all{true, true, true, true};
+  FrameAccumulator f;
+  std::vector<Pass> ps;
+  for (int k = 0; k < 3; ++k) ps.push_back(test::make_pass(5, 4, 1 + k, 100 + k, all));
+  for (int k = 0; k < 3; ++k) f.add(ps[k], "p" + std::to_string(k));
+  const FrameEstimate e = f.estimate();
+  REQUIRE(e.variance_source == VarianceSource::renderer);
+  const double N = 1 + 2 + 3;
+  double alb = 0, var = 0;
+  for (int k = 0; k < 3; ++k) {
+    alb += ps[k].spp * ps[k].albedo.at(3, 2, 1);
+    var += ps[k].spp * ps[k].spp * ps[k].variance.at(3, 2, 1);
+  }
+  CHECK(e.albedo.at(3, 2, 1) == Approx(alb / N).epsilon(1e-6));
+  CHECK(e.variance.at(3, 2, 1) == Approx(var / (N * N)).epsilon(1e-6));
+  CHECK_FALSE(e.normal.empty());
+  CHECK(e.depth.channels() == 1);
+  CHECK(FrameAccumulator::bytes_per_pixel(all) == 256);
+  CHECK(FrameAccumulator::bytes_per_pixel(Layout{}) == 120);
+}
+
+TEST_CASE("NaN/Inf samples are dropped per pixel and counted, never reaching the mean",
+          "[accumulator][nonfinite]") {
+  FrameAccumulator f;
+  Pass a = constant_pass(4, 4, 1, 1, 1, 1);
+  Pass b = constant_pass(4, 4, 1, 3, 3, 3);
+  Pass c = constant_pass(4, 4, 1, 2, 2, 2);
+  c.colour.at(1, 1, 0) = std::numeric_limits<float>::quiet_NaN();
+  c.colour.at(2, 3, 2) = std::numeric_limits<float>::infinity();
+  f.add(a, "a");
+  f.add(b, "b");
+  const AddResult r = f.add(c, "c");
+  CHECK(r.dropped_pixels == 2);
+  CHECK(f.dropped_samples() == 2);
+  const FrameEstimate e = f.estimate();
+  for (int ch = 0; ch < 3; ++ch) {
+    CHECK(e.mean.at(1, 1, ch) == Approx(2.0));  // (1 + 3) / 2: the whole pixel sample dropped
+    CHECK(e.mean.at(0, 0, ch) == Approx(2.0));  // (1 + 3 + 2) / 3
+    CHECK(std::isfinite(e.variance.at(1, 1, ch)));
+  }
+  CHECK(e.passes.at(1, 1, 0) == 2.0f);
+  CHECK(e.passes.at(2, 3, 0) == 2.0f);
+  CHECK(e.passes.at(0, 0, 0) == 3.0f);
+  CHECK(e.variance.at(1, 1, 0) == Approx(2.0 / 2));  // s^2 = 2, K = 2
+}
+
+TEST_CASE("a pixel every pass dropped is a flagged hole filled from its neighbours",
+          "[accumulator][nonfinite]") {
+  FrameAccumulator f;
+  for (int k = 0; k < 2; ++k) {
+    Pass p = constant_pass(3, 3, 1, 1.0f + static_cast<float>(k), 1, 1);
+    p.colour.at(1, 1, 1) = std::numeric_limits<float>::quiet_NaN();
+    f.add(p, "p" + std::to_string(k));
+  }
+  const FrameEstimate e = f.estimate();
+  CHECK(e.hole_pixels == 1);
+  CHECK(e.low_confidence());
+  CHECK(e.mean.at(1, 1, 0) == Approx(1.5));
+  CHECK(std::isfinite(e.variance.at(1, 1, 0)));
+}
+
+TEST_CASE("non-finite feature values are sanitised, colour kept", "[accumulator][nonfinite]") {
+  Layout l{false, false, true, false};
+  Pass p = test::make_pass(2, 2, 1, 1, l);
+  p.depth.at(0, 0, 0) = std::numeric_limits<float>::infinity();
+  FrameAccumulator f;
+  const AddResult r = f.add(p, "p");
+  CHECK(r.dropped_pixels == 0);
+  CHECK(r.sanitized_features == 1);
+  CHECK(f.estimate().depth.at(0, 0, 0) == Approx(1e10));
+}
+
+TEST_CASE("a single pass falls back to a spatial variance and flags low confidence",
+          "[accumulator][fallback]") {
+  FrameAccumulator f;
+  f.add(test::make_pass(16, 16, 4, 3), "only");
+  const FrameEstimate e = f.estimate();
+  CHECK(e.variance_source == VarianceSource::spatial);
+  CHECK(e.low_confidence());
+  CHECK(e.spatial_pixels == 256);
+  CHECK(e.half_mean[0].empty());
+  for (float v : e.variance.data()) {
+    CHECK(std::isfinite(v));
+    CHECK(v >= 0.0f);
+  }
+  // 1x1 frame: no neighbours, 100 % relative error is assumed.
+  FrameAccumulator one;
+  one.add(constant_pass(1, 1, 1, 2, 0, 0.5f), "px");
+  const FrameEstimate e1 = one.estimate();
+  CHECK(e1.variance.at(0, 0, 0) == Approx(4.0));
+  CHECK(e1.variance.at(0, 0, 1) == 0.0f);
+}
+
+TEST_CASE("1e6 dynamic range: Welford keeps the variance exact", "[accumulator][range]") {
+  // Fireflies of ~1e6 next to values ~1e-2 and ~1e-8.
+  const std::vector<double> bright = {1e6, 1e6 + 3, 1e6 - 1, 1e6 + 0.5};
+  const std::vector<double> dark = {1e-8, 3e-8, 2e-8, 0.5e-8};
+  FrameAccumulator f;
+  for (std::size_t k = 0; k < bright.size(); ++k) {
+    Pass p = constant_pass(2, 1, 1, 0.01f, 0.01f, 0.01f);
+    p.colour.at(0, 0, 0) = static_cast<float>(bright[k]);
+    p.colour.at(1, 0, 0) = static_cast<float>(dark[k]);
+    p.colour.at(1, 0, 1) = 0.01f * static_cast<float>(k);
+    f.add(p, "p" + std::to_string(k));
+  }
+  std::vector<double> bf, df;
+  for (double v : bright) bf.push_back(static_cast<float>(v));
+  for (double v : dark) df.push_back(static_cast<float>(v));
+  const std::vector<double> ones(4, 1.0);
+  const FrameEstimate e = f.estimate();
+  CHECK(e.variance.at(0, 0, 0) == Approx(direct(bf, ones).var).epsilon(1e-5));
+  CHECK(e.variance.at(1, 0, 0) == Approx(direct(df, ones).var).epsilon(1e-5));
+  CHECK(e.mean.at(1, 0, 0) == Approx(direct(df, ones).mean).epsilon(1e-6));
+  CHECK(e.variance.at(0, 0, 1) == 0.0f);  // constant 0.01 across passes
+}
+
+TEST_CASE("identical passes are refused but constant frames are not", "[accumulator][duplicate]") {
+  FrameAccumulator f;
+  const Pass p = test::make_pass(8, 8, 4, 11);
+  f.add(p, "first.exr");
+  f.add(test::make_pass(8, 8, 4, 12), "second.exr");
+  const auto before = f.state_digest();
+  try {
+    f.add(p, "again.exr");
+    FAIL("duplicate accepted");
+  } catch (const InputError& e) {
+    CHECK(e.kind() == InputErrorKind::duplicate);
+    CHECK_THAT(e.what(), Contains("again.exr") && Contains("first.exr"));
+  }
+  CHECK(f.state_digest() == before);
+  CHECK(f.passes() == 2);
+
+  FrameAccumulator black;
+  black.add(constant_pass(4, 4, 1, 0, 0, 0), "b0");
+  black.add(constant_pass(4, 4, 1, 0, 0, 0), "b1");
+  const FrameEstimate e = black.estimate();
+  CHECK(black.passes() == 2);
+  CHECK(e.variance.at(2, 2, 1) == 0.0f);
+  CHECK_FALSE(e.low_confidence());
+}
+
+TEST_CASE("size, layout and spp mismatches are refused and leave the state unchanged",
+          "[accumulator][bad-input]") {
+  FrameAccumulator f;
+  f.add(test::make_pass(8, 8, 4, 1), "a");
+  f.add(test::make_pass(8, 8, 4, 2), "b");
+  const auto before = f.state_digest();
+  auto expect = [&](const Pass& p, InputErrorKind kind, const char* what) {
+    try {
+      f.add(p, "bad.exr");
+      FAIL("accepted a bad pass: " << what);
+    } catch (const InputError& e) {
+      CHECK(e.kind() == kind);
+      CHECK_THAT(e.what(), Contains("bad.exr") && Contains(what));
+    }
+    CHECK(f.state_digest() == before);
+    CHECK(f.passes() == 2);
+  };
+  expect(test::make_pass(8, 7, 4, 3), InputErrorKind::size_mismatch, "8x7");
+  expect(test::make_pass(8, 8, 4, 4, Layout{true, true, false, false}),
+         InputErrorKind::layout_mismatch, "HDR+ALB+NRM");
+  expect(test::make_pass(8, 8, 0, 5), InputErrorKind::invalid_value, "samples per pixel");
+  Pass nan_spp = test::make_pass(8, 8, 1, 6);
+  nan_spp.spp = std::numeric_limits<double>::quiet_NaN();
+  expect(nan_spp, InputErrorKind::invalid_value, "samples per pixel");
+  Pass two = test::make_pass(8, 8, 1, 7);
+  two.colour = Image(8, 8, 2);
+  expect(two, InputErrorKind::missing_channels, "RGB");
+}

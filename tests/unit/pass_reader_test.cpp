@@ -1,0 +1,201 @@
+// Round trips of every supported input layout through the pass reader, and real renderer files.
+#include <OpenImageIO/imageio.h>
+#include <catch2/catch.hpp>
+
+#include <cmath>
+#include <filesystem>
+
+#include "proden/error.hpp"
+#include "proden/io/image_writer.hpp"
+#include "proden/io/pass_reader.hpp"
+#include "test_support.hpp"
+
+using namespace proden;
+using Catch::Matchers::Contains;
+
+namespace {
+
+// |a - b| <= rel * max(|b|, floor) per value.
+void require_close(const Image& a, const Image& b, double rel, double floor = 1e-3) {
+  REQUIRE(a.same_size(b));
+  REQUIRE(a.channels() == b.channels());
+  for (std::size_t i = 0; i < a.data().size(); ++i) {
+    const double x = a.data()[i], y = b.data()[i];
+    if (std::abs(x - y) > rel * std::max(std::abs(y), floor)) {
+      FAIL("value " << i << ": " << x << " vs " << y);
+    }
+  }
+}
+
+std::string samples(const std::string& rel) {
+  return std::string(PRODEN_SAMPLES_DIR) + "/" + rel;
+}
+
+}  // namespace
+
+TEST_CASE("Blender multilayer EXR layout round-trips (float and half)", "[io]") {
+  test::TempDir dir;
+  const Layout feats{true, true, true, false};
+  const Pass p = test::make_pass(17, 9, 16, 5, feats);
+  for (bool half : {false, true}) {
+    std::vector<io::NamedChannel> ch;
+    Image alpha(17, 9, 1, 1.0f);
+    io::add_layer(ch, "RenderLayer.Combined.", p.colour);
+    io::add_layer(ch, "RenderLayer.Combined.", alpha, "A");
+    io::add_layer(ch, "RenderLayer.Denoising Albedo.", p.albedo);
+    io::add_layer(ch, "RenderLayer.Denoising Normal.", p.normal, "XYZ");
+    io::add_layer(ch, "RenderLayer.Denoising Depth.", p.depth, "Z");
+    io::WriteOptions o;
+    o.half = half;
+    o.attributes = {{"cycles.RenderLayer.samples", "16"},
+                    {"cycles.RenderLayer.render_time", "01:02.50"}};
+    const std::string f = dir.file(half ? "half.exr" : "float.exr");
+    io::write_image(f, 17, 9, ch, o);
+
+    io::PassInfo info;
+    const Pass r = io::read_pass(f, {}, &info);
+    CHECK(info.renderer == io::Renderer::cycles);
+    CHECK(info.layer == "RenderLayer");
+    CHECK(info.spp == 16);
+    CHECK(info.spp_source == io::SppSource::header);
+    CHECK(info.pixel_type == (half ? "half" : "float"));
+    REQUIRE(info.render_time.has_value());
+    CHECK(*info.render_time == Approx(62.5));
+    CHECK(info.layout == feats);
+    const double tol = half ? 1e-3 : 0.0;
+    require_close(r.colour, p.colour, tol);
+    require_close(r.albedo, p.albedo, tol);
+    require_close(r.normal, p.normal, tol);
+    require_close(r.depth, p.depth, tol);
+    CHECK(r.variance.empty());
+
+    // Simulate only what is asked for: features can be skipped.
+    io::ReadOptions colour_only;
+    colour_only.features = false;
+    CHECK(io::read_pass(f, colour_only).layout() == Layout{});
+  }
+}
+
+TEST_CASE("generic EXR layout with albedo, normal, depth and variance round-trips", "[io]") {
+  test::TempDir dir;
+  const Layout all{true, true, true, true};
+  const Pass p = test::make_pass(8, 8, 2, 9, all);
+  test::write_generic_exr(dir.file("g.exr"), p);
+  io::PassInfo info;
+  io::ReadOptions o;
+  o.spp = 2;
+  const Pass r = io::read_pass(dir.file("g.exr"), o, &info);
+  CHECK(info.renderer == io::Renderer::generic);
+  CHECK(info.spp_source == io::SppSource::option);
+  CHECK(r.spp == 2);
+  CHECK(r.layout() == all);
+  require_close(r.colour, p.colour, 0);
+  require_close(r.variance, p.variance, 0);
+  require_close(r.normal, p.normal, 0);
+  // Without --spp the sample count is assumed to be 1 and said so.
+  io::PassInfo assumed;
+  io::read_pass(dir.file("g.exr"), {}, &assumed);
+  CHECK(assumed.spp_source == io::SppSource::assumed);
+  CHECK(assumed.spp == 1);
+}
+
+TEST_CASE("POV-Ray-style half RGB EXR and Radiance HDR round-trip", "[io]") {
+  test::TempDir dir;
+  Pass p = test::make_pass(12, 10, 1, 21);
+  for (float& v : p.colour.data()) v = std::abs(v);  // RGBE cannot store negatives
+  std::vector<io::NamedChannel> ch;
+  io::add_layer(ch, "", p.colour);
+  io::WriteOptions o;
+  o.half = true;
+  o.attributes = {{"Software", "POV-Ray 3.7.0.10.unofficial"}};
+  io::write_image(dir.file("pov.exr"), 12, 10, ch, o);
+  io::PassInfo info;
+  const Pass r = io::read_pass(dir.file("pov.exr"), {}, &info);
+  CHECK(info.renderer == io::Renderer::povray);
+  CHECK(info.pixel_type == "half");
+  require_close(r.colour, p.colour, 1e-3);
+
+  io::write_image(dir.file("pov.hdr"), 12, 10, ch, {});
+  io::PassInfo hinfo;
+  const Pass h = io::read_pass(dir.file("pov.hdr"), {}, &hinfo);
+  CHECK(hinfo.format == "hdr");
+  // RGBE: one exponent for the pixel, so small channels are quantised relative to the largest.
+  require_close(h.colour, p.colour, 1.0 / 64, 0.5);
+}
+
+TEST_CASE("multi-part EXR: channels gathered across parts", "[io]") {
+  test::TempDir dir;
+  const Pass p = test::make_pass(6, 5, 4, 33, Layout{true, false, false, false});
+  const std::string f = dir.file("multi.exr");
+  auto out = OIIO::ImageOutput::create(f);
+  REQUIRE(out);
+  OIIO::ImageSpec specs[2] = {OIIO::ImageSpec(6, 5, 3, OIIO::TypeDesc::FLOAT),
+                              OIIO::ImageSpec(6, 5, 3, OIIO::TypeDesc::FLOAT)};
+  specs[0].channelnames = {"R", "G", "B"};
+  specs[1].channelnames = {"Albedo.R", "Albedo.G", "Albedo.B"};
+  specs[0].attribute("oiio:subimagename", "beauty");
+  specs[1].attribute("oiio:subimagename", "albedo");
+  REQUIRE(out->open(f, 2, specs));
+  auto interleave = [](const Image& img) {
+    std::vector<float> v(img.pixels() * 3);
+    for (std::size_t i = 0; i < img.pixels(); ++i) {
+      for (int c = 0; c < 3; ++c) v[i * 3 + static_cast<std::size_t>(c)] = img.plane(c)[i];
+    }
+    return v;
+  };
+  REQUIRE(out->write_image(OIIO::TypeDesc::FLOAT, interleave(p.colour).data()));
+  REQUIRE(out->open(f, specs[1], OIIO::ImageOutput::AppendSubimage));
+  REQUIRE(out->write_image(OIIO::TypeDesc::FLOAT, interleave(p.albedo).data()));
+  REQUIRE(out->close());
+
+  io::PassInfo info;
+  const Pass r = io::read_pass(f, {}, &info);
+  CHECK(info.subimages == 2);
+  CHECK(r.layout() == Layout{true, false, false, false});
+  require_close(r.colour, p.colour, 0);
+  require_close(r.albedo, p.albedo, 0);
+}
+
+TEST_CASE("real Blender Cycles pass from samples/", "[io][real]") {
+  io::PassInfo info;
+  const Pass p = io::read_pass(samples("renders/cornell/pass_00.exr"), {}, &info);
+  CHECK(info.renderer == io::Renderer::cycles);
+  CHECK(info.layer == "ViewLayer");
+  CHECK(info.width == 128);
+  CHECK(info.height == 128);
+  CHECK(info.spp == 4);
+  CHECK(info.spp_source == io::SppSource::header);
+  CHECK(info.layout == Layout{true, true, true, false});
+  double sum = 0;
+  for (float v : p.colour.data()) {
+    REQUIRE(std::isfinite(v));
+    sum += v;
+  }
+  CHECK(sum > 0);  // a lit scene
+  // The half-float scene decodes too.
+  io::PassInfo hinfo;
+  io::read_pass(samples("renders/textured_dof/pass_00.exr"), {}, &hinfo);
+  CHECK(hinfo.pixel_type == "half");
+  CHECK(hinfo.renderer == io::Renderer::cycles);
+}
+
+TEST_CASE("real POV-Ray passes from samples/ (EXR and HDR)", "[io][real]") {
+  io::PassInfo info;
+  io::ReadOptions o;
+  o.spp = 1;
+  const Pass p = io::read_pass(samples("renders/povray/pass_00.exr"), o, &info);
+  CHECK(info.renderer == io::Renderer::povray);
+  CHECK(info.width == 128);
+  CHECK(info.pixel_type == "half");
+  io::PassInfo hinfo;
+  const Pass h = io::read_pass(samples("renders/povray/pass_00.hdr"), o, &hinfo);
+  CHECK(hinfo.format == "hdr");
+  REQUIRE(h.colour.same_size(p.colour));
+  // Same render, two encodings: agree within RGBE/half precision on average.
+  double diff = 0, mag = 0;
+  for (std::size_t i = 0; i < p.colour.data().size(); ++i) {
+    diff += std::abs(p.colour.data()[i] - h.colour.data()[i]);
+    mag += std::abs(p.colour.data()[i]);
+  }
+  CHECK(diff / mag < 0.01);
+}
