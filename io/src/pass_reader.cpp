@@ -217,56 +217,80 @@ PassInfo probe_pass(const std::string& path, const ReadOptions& options) {
   return info;
 }
 
-Pass read_pass(const std::string& path, const ReadOptions& options, PassInfo* info_out) {
-  auto in = open_checked(path);
-  const Header h = read_header(*in, path);
-  PassInfo info;
-  const Resolved r = resolve(h, path, options, info);
+namespace {
 
-  // Read each subimage we need once, all channels as float (OIIO converts half), then scatter.
-  std::map<int, std::vector<float>> parts;
-  std::map<int, int> part_channels;
-  auto need = [&](const std::vector<std::string>& names) {
-    for (const auto& n : names) {
-      const int s = h.where.at(n).subimage;
-      if (parts.count(s)) continue;
-      if (!in->seek_subimage(s, 0)) fail(InputErrorKind::unreadable, path, oiio_error(in.get()));
-      const int nch = in->spec().nchannels;
-      std::vector<float> buf(static_cast<std::size_t>(h.width) * h.height * nch);
-      if (!in->read_image(s, 0, 0, nch, OIIO::TypeDesc::FLOAT, buf.data())) {
-        fail(InputErrorKind::unreadable, path,
-             "truncated or corrupt pixel data: " + oiio_error(in.get()));
-      }
-      parts[s] = std::move(buf);
-      part_channels[s] = nch;
-    }
-  };
-  auto load = [&](const std::vector<std::string>& names) {
+// Reads the named channels (all present in `h`) as one planar image; each subimage is read once.
+class ChannelLoader {
+ public:
+  ChannelLoader(OIIO::ImageInput& in, const Header& h, const std::string& path)
+      : in_(in), h_(h), path_(path) {}
+
+  Image load(const std::vector<std::string>& names) {
     if (names.empty()) return Image();
-    need(names);
-    Image img(h.width, h.height, static_cast<int>(names.size()));
+    Image img(h_.width, h_.height, static_cast<int>(names.size()));
     for (std::size_t c = 0; c < names.size(); ++c) {
-      const ChannelRef ref = h.where.at(names[c]);
-      const auto& buf = parts.at(ref.subimage);
-      const std::size_t nch = static_cast<std::size_t>(part_channels.at(ref.subimage));
+      const ChannelRef ref = h_.where.at(names[c]);
+      const auto& [buf, nch] = part(ref.subimage);
       auto plane = img.plane(static_cast<int>(c));
       for (std::size_t p = 0; p < plane.size(); ++p) {
         plane[p] = buf[p * nch + static_cast<std::size_t>(ref.index)];
       }
     }
     return img;
-  };
+  }
 
+ private:
+  // All channels of a subimage as float (OIIO converts half), read on first use.
+  const std::pair<std::vector<float>, std::size_t>& part(int s) {
+    if (auto it = parts_.find(s); it != parts_.end()) return it->second;
+    if (!in_.seek_subimage(s, 0)) fail(InputErrorKind::unreadable, path_, oiio_error(&in_));
+    const int nch = in_.spec().nchannels;
+    std::vector<float> buf(static_cast<std::size_t>(h_.width) *
+                           static_cast<std::size_t>(h_.height) * static_cast<std::size_t>(nch));
+    if (!in_.read_image(s, 0, 0, nch, OIIO::TypeDesc::FLOAT, buf.data())) {
+      fail(InputErrorKind::unreadable, path_,
+           "truncated or corrupt pixel data: " + oiio_error(&in_));
+    }
+    return parts_[s] = {std::move(buf), static_cast<std::size_t>(nch)};
+  }
+
+  OIIO::ImageInput& in_;
+  const Header& h_;
+  const std::string& path_;
+  std::map<int, std::pair<std::vector<float>, std::size_t>> parts_;
+};
+
+}  // namespace
+
+Pass read_pass(const std::string& path, const ReadOptions& options, PassInfo* info_out) {
+  auto in = open_checked(path);
+  const Header h = read_header(*in, path);
+  PassInfo info;
+  const Resolved r = resolve(h, path, options, info);
+  ChannelLoader loader(*in, h, path);
   Pass pass;
-  pass.colour = load(r.colour);
-  pass.albedo = load(r.albedo);
-  pass.normal = load(r.normal);
-  pass.depth = load(r.depth);
-  pass.variance = load(r.variance);
+  pass.colour = loader.load(r.colour);
+  pass.albedo = loader.load(r.albedo);
+  pass.normal = loader.load(r.normal);
+  pass.depth = loader.load(r.depth);
+  pass.variance = loader.load(r.variance);
   pass.spp = info.spp;
   in->close();
   if (info_out) *info_out = std::move(info);
   return pass;
+}
+
+Image read_layer(const std::string& path, const std::string& layer, const ReadOptions& options) {
+  if (layer.empty() || layer == "result") return read_rgb(path, options);
+  auto in = open_checked(path);
+  const Header h = read_header(*in, path);
+  const std::vector<std::string> names = {layer + ".R", layer + ".G", layer + ".B"};
+  for (const auto& n : names) {
+    if (!h.where.count(n)) {
+      fail(InputErrorKind::missing_channels, path, "no layer '" + layer + "' (channel " + n + ")");
+    }
+  }
+  return ChannelLoader(*in, h, path).load(names);
 }
 
 Image read_rgb(const std::string& path, const ReadOptions& options) {

@@ -27,7 +27,7 @@ std::uint64_t hash_bytes(std::span<const unsigned char> bytes, std::uint64_t see
     h = mix(h ^ (word * kMul)) + kMul;
   }
   std::uint64_t tail = 0;
-  std::memcpy(&tail, bytes.data() + i, bytes.size() - i);
+  if (i < bytes.size()) std::memcpy(&tail, bytes.data() + i, bytes.size() - i);
   return mix(h ^ tail ^ kMul);
 }
 

@@ -74,22 +74,30 @@ Accumulated accumulate(const std::vector<std::string>& files, const InputOptions
 }  // namespace
 
 int run_denoise(const DenoiseOptions& o) {
-  const auto t0 = std::chrono::steady_clock::now();
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
   Accumulated a = accumulate(o.passes, o.input, "accumulate", o.progress);
   if (a.frame.empty()) {
     spdlog::error("no usable pass among {} file(s); nothing written", o.passes.size());
     return kBadInput;
   }
-  const FrameEstimate est = a.frame.estimate({.halves = false, .features = false});
+  const auto t1 = Clock::now();
+  const FrameEstimate est =
+      a.frame.estimate({.halves = false, .features = o.input.features && o.pipeline.features});
+  const PipelineResult res = run_pipeline(est, o.pipeline);
+  const auto t2 = Clock::now();
 
-  // The progressive pipeline (denoise, SURE, mixing) lands in a later stage; until then the
-  // result is the accumulated render.
-  const Image& result = est.mean;
+  // What the run actually used, in the paper's Table 1 terms (HDR, +VAR, +ALB+NRM).
+  Layout used = res.inputs;
+  used.variance = a.frame.layout().variance;
   std::vector<io::NamedChannel> channels;
-  io::add_layer(channels, "", result);
+  io::add_layer(channels, "", res.result);
   if (o.aov) {
     io::add_layer(channels, "render.", est.mean);
     io::add_layer(channels, "variance.", est.variance);
+    io::add_layer(channels, "denoised.", res.denoised);
+    io::add_layer(channels, "alpha.", res.alpha);
+    io::add_layer(channels, "sure.", res.sure);
   }
   io::WriteOptions w;
   w.half = o.half;
@@ -97,7 +105,11 @@ int run_denoise(const DenoiseOptions& o) {
       {"Software", std::string("proden ") + PRODEN_VERSION},
       {"proden:passes", std::to_string(a.frame.passes())},
       {"proden:spp", std::to_string(a.frame.total_spp())},
-      {"proden:inputs", a.frame.layout().to_string()},
+      {"proden:inputs", used.to_string()},
+      {"proden:denoiser", res.denoiser},
+      {"proden:mixer", res.mixer},
+      {"proden:divergence", res.divergence},
+      {"proden:t_test", o.pipeline.t_test ? "on" : "off"},
       {"proden:variance_source", std::string(protocol::to_string(est.variance_source))},
       {"proden:low_confidence", est.low_confidence() ? "true" : "false"},
   };
@@ -107,19 +119,47 @@ int run_denoise(const DenoiseOptions& o) {
     spdlog::error("{}", e.what());
     return kInternalError;
   }
-  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const auto t3 = Clock::now();
+  const double accumulate_s = std::chrono::duration<double>(t1 - t0).count();
+  const double pipeline_s = std::chrono::duration<double>(t2 - t1).count();
+  const double write_s = std::chrono::duration<double>(t3 - t2).count();
+  const double total_s = std::chrono::duration<double>(t3 - t0).count();
+  const auto& tm = res.timings;
+  json timings = {{"read_accumulate", accumulate_s},
+                  {"pipeline_wall", pipeline_s},
+                  {"denoise_cpu", tm.denoise},
+                  {"sure_cpu", tm.sure},
+                  {"mixer_cpu", tm.mixer},
+                  {"ttest_cpu", tm.ttest},
+                  {"compose_cpu", tm.compose},
+                  {"write", write_s},
+                  {"total", total_s}};
 
   if (o.json) {
     json j = protocol::frame_summary(a.frame, est);
     j["output"] = o.out;
     j["rejected_files"] = a.rejected;
-    j["seconds"] = secs;
+    j["seconds"] = total_s;
+    j["inputs_used"] = used.to_string();
+    j["pipeline"] = {{"denoiser", res.denoiser},     {"mixer", res.mixer},
+                     {"divergence", res.divergence}, {"t_test", o.pipeline.t_test},
+                     {"tile", o.pipeline.tile},      {"halo", res.halo},
+                     {"noise_free", res.noise_free}};
+    if (o.timings) j["timings"] = timings;
     std::cout << j.dump(2) << "\n";
   } else {
-    spdlog::info("{}: {} pass(es), {} spp, inputs {}, variance from {}{}; {:.2f} s", o.out,
-                 a.frame.passes(), a.frame.total_spp(), a.frame.layout().to_string(),
-                 protocol::to_string(est.variance_source),
-                 est.low_confidence() ? " (low confidence)" : "", secs);
+    spdlog::info(
+        "{}: {} pass(es), {} spp, inputs {}, variance from {}{}; {} + {} mixer{}; {:.2f} s", o.out,
+        a.frame.passes(), a.frame.total_spp(), used.to_string(),
+        protocol::to_string(est.variance_source), est.low_confidence() ? " (low confidence)" : "",
+        res.denoiser, res.mixer, o.pipeline.t_test ? " + t-test" : "", total_s);
+    if (o.timings) {
+      std::fprintf(stderr,
+                   "timings (s): read+accumulate %.3f | pipeline wall %.3f (cpu: denoise %.3f, "
+                   "sure %.3f, mixer %.3f, t-test %.3f, compose %.3f) | write %.3f | total %.3f\n",
+                   accumulate_s, pipeline_s, tm.denoise, tm.sure, tm.mixer, tm.ttest, tm.compose,
+                   write_s, total_s);
+    }
   }
   return a.rejected > 0 ? kBadInput : kOk;
 }
@@ -130,35 +170,60 @@ int run_eval(const EvalOptions& o) {
     spdlog::error("no usable reference image");
     return kBadInput;
   }
-  const Image reference = ref.frame.estimate({.halves = false, .features = false}).mean;
+  const FrameEstimate ref_est = ref.frame.estimate({.halves = false, .features = false});
+  const Image& reference = ref_est.mean;
+  // A reference rendered in passes carries its own noise: E[measured MSE] = MSE + mean Var[ref].
+  double ref_var = 0.0;
+  if (ref.frame.passes() >= 2) {
+    for (float v : ref_est.variance.data()) ref_var += v;
+    ref_var /= static_cast<double>(ref_est.variance.data().size());
+  }
   int rejected = ref.rejected;
   json results = json::array();
   const auto options = read_options(o.input);
+  const std::vector<std::string> layers =
+      o.layers.empty() ? std::vector<std::string>{"result"} : o.layers;
   for (const auto& f : o.images) {
-    try {
-      const Image img = io::read_rgb(f, options);
-      if (!img.same_size(reference)) {
-        throw InputError(InputErrorKind::size_mismatch, f,
-                         "is " + std::to_string(img.width()) + "x" + std::to_string(img.height()) +
-                             ", the reference is " + std::to_string(reference.width()) + "x" +
-                             std::to_string(reference.height()));
+    for (const auto& layer : layers) {
+      try {
+        const Image img = io::read_layer(f, layer, options);
+        if (!img.same_size(reference)) {
+          throw InputError(InputErrorKind::size_mismatch, f,
+                           "is " + std::to_string(img.width()) + "x" +
+                               std::to_string(img.height()) + ", the reference is " +
+                               std::to_string(reference.width()) + "x" +
+                               std::to_string(reference.height()));
+        }
+        const ErrorMetrics m = compute_metrics(img, reference);
+        json r = protocol::to_json(m);
+        r["image"] = f;
+        r["layer"] = layer;
+        if (ref.frame.passes() >= 2) {
+          r["mse_minus_reference_variance"] = m.mse - ref_var;
+        }
+        results.push_back(r);
+      } catch (const InputError& e) {
+        report(e);
+        ++rejected;
       }
-      json r = protocol::to_json(compute_metrics(img, reference));
-      r["image"] = f;
-      results.push_back(r);
-    } catch (const InputError& e) {
-      report(e);
-      ++rejected;
     }
   }
   if (o.json) {
-    std::cout << json{{"reference", o.references}, {"results", results}}.dump(2) << "\n";
+    json j = {{"reference", o.references}, {"results", results}};
+    if (ref.frame.passes() >= 2) j["reference_variance_mean"] = ref_var;
+    std::cout << j.dump(2) << "\n";
   } else {
-    std::printf("%-48s %12s %12s %12s %10s\n", "image", "RMSE", "relMSE", "SMAPE", "nonfinite");
+    std::printf("%-48s %-9s %12s %12s %12s %10s\n", "image", "layer", "RMSE", "relMSE", "SMAPE",
+                "nonfinite");
     for (const auto& r : results) {
-      std::printf("%-48s %12.6g %12.6g %12.6g %10zu\n", r["image"].get<std::string>().c_str(),
-                  r["rmse"].get<double>(), r["relmse"].get<double>(), r["smape"].get<double>(),
+      std::printf("%-48s %-9s %12.6g %12.6g %12.6g %10zu\n", r["image"].get<std::string>().c_str(),
+                  r["layer"].get<std::string>().c_str(), r["rmse"].get<double>(),
+                  r["relmse"].get<double>(), r["smape"].get<double>(),
                   r["nonfinite"].get<std::size_t>());
+    }
+    if (ref.frame.passes() >= 2) {
+      std::printf("reference: %d passes, mean variance %.6g (subtract from MSE)\n",
+                  ref.frame.passes(), ref_var);
     }
   }
   return rejected > 0 ? kBadInput : kOk;

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "proden/io/profile.hpp"
+#include "proden/progressive.hpp"
 
 namespace proden::cli {
 
@@ -25,11 +26,13 @@ struct InputOptions {
 
 struct DenoiseOptions {
   InputOptions input;
+  PipelineOptions pipeline;
   std::vector<std::string> passes;
   std::string out;
   bool aov = false;
   bool half = false;
   bool json = false;
+  bool timings = false;  // print each stage's time (and in --json)
   bool progress = true;
 };
 
@@ -37,6 +40,7 @@ struct EvalOptions {
   InputOptions input;
   std::vector<std::string> references;  // several = passes of a reference, averaged
   std::vector<std::string> images;
+  std::vector<std::string> layers;  // "result" (R,G,B), "render", "denoised", ...; empty = result
   bool json = false;
 };
 

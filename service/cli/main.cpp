@@ -50,6 +50,36 @@ int main(int argc, char** argv) {
   d->add_flag("--json", den.json, "Print a JSON summary of the frame on stdout");
   d->add_flag("-q,--quiet", quiet, "No progress display");
   d->add_option("passes", den.passes, "Pass files of one frame")->required();
+  std::string divergence = "auto", mixer = "closed-form", rule = "stein";
+  d->add_option("--divergence", divergence,
+                "SURE divergence: auto (analytic when the denoiser offers it), analytic, mc")
+      ->check(CLI::IsMember({"auto", "analytic", "mc"}))
+      ->capture_default_str();
+  d->add_option("--probes", den.pipeline.probes.count, "Monte-Carlo probes for --divergence mc")
+      ->check(CLI::Range(1, 64))
+      ->capture_default_str();
+  d->add_option("--mixer", mixer, "Mixing weights: closed-form")
+      ->check(CLI::IsMember({"closed-form"}))
+      ->capture_default_str();
+  d->add_option("--closed-form-rule", rule,
+                "stein (MSE-optimal, accounts for y depending on x) or inverse-error")
+      ->check(CLI::IsMember({"stein", "inverse-error"}))
+      ->capture_default_str();
+  d->add_flag("!--no-ttest", den.pipeline.t_test, "Skip the t-statistic rescale of alpha");
+  d->add_option("--mixer-radius", den.pipeline.mixer.radius,
+                "Closed-form mixer: window radius of its smoothed estimates")
+      ->check(CLI::Range(0, 16))
+      ->capture_default_str();
+  d->add_option("--tile", den.pipeline.tile, "Tile size in pixels")
+      ->check(CLI::Range(8, 4096))
+      ->capture_default_str();
+  d->add_option("--search-radius", den.pipeline.nlmeans.search_radius, "NL-means search radius")
+      ->check(CLI::Range(0, 32))
+      ->capture_default_str();
+  d->add_option("--patch-radius", den.pipeline.nlmeans.patch_radius, "NL-means patch radius")
+      ->check(CLI::Range(0, 16))
+      ->capture_default_str();
+  d->add_flag("--timings", den.timings, "Print the time of each stage");
 
   cli::EvalOptions ev;
   auto* e = app.add_subcommand("eval", "Error metrics (RMSE, relMSE, SMAPE) against a reference");
@@ -60,12 +90,16 @@ int main(int argc, char** argv) {
       ->allow_extra_args(false);
   e->add_option("images", ev.images, "Images to evaluate")->required();
   e->add_flag("--json", ev.json, "JSON output");
+  e->add_option("--layer", ev.layers,
+                "Layer to evaluate: result (R,G,B), render, denoised, ...; repeatable")
+      ->allow_extra_args(false);
 
   cli::InfoOptions inf;
   auto* i = app.add_subcommand("info", "Show what proden detects in pass files");
   add_input_options(i, inf.input, renderer);
   i->add_option("files", inf.files, "Pass files")->required();
   i->add_flag("--json", inf.json, "JSON output");
+
 
   try {
     app.parse(argc, argv);
@@ -77,6 +111,12 @@ int main(int argc, char** argv) {
   const auto r = io::parse_renderer(renderer).value_or(io::Renderer::automatic);
   den.input.renderer = ev.input.renderer = inf.input.renderer = r;
   den.progress = !quiet;
+  den.pipeline.features = den.input.features;
+  den.pipeline.divergence = divergence == "analytic" ? DivergenceMethod::analytic
+                            : divergence == "mc"     ? DivergenceMethod::monte_carlo
+                                                     : DivergenceMethod::automatic;
+  den.pipeline.mixer.rule =
+      rule == "inverse-error" ? ClosedFormRule::inverse_error : ClosedFormRule::stein;
 
   std::unique_ptr<tbb::global_control> limit;
   if (threads > 0) {

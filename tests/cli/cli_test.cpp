@@ -118,6 +118,9 @@ void check_against_independent(const std::string& set, const std::string& out) {
   const auto render = read_exr(out, {"render.R", "render.G", "render.B"}, &ow, &oh);
   const auto var = read_exr(out, {"variance.R", "variance.G", "variance.B"}, &ow, &oh);
   const auto result = read_exr(out, {"R", "G", "B"}, &ow, &oh);
+  const auto denoised = read_exr(out, {"denoised.R", "denoised.G", "denoised.B"}, &ow, &oh);
+  const auto alpha = read_exr(out, {"alpha.R", "alpha.G", "alpha.B"}, &ow, &oh);
+  const auto sure = read_exr(out, {"sure.R", "sure.G", "sure.B"}, &ow, &oh);
   REQUIRE(ow == w);
   REQUIRE(oh == h);
   const double K = static_cast<double>(files.size());
@@ -137,7 +140,13 @@ void check_against_independent(const std::string& set, const std::string& out) {
       const double got_v = var[static_cast<std::size_t>(c)][p];
       worst_mean = std::max(worst_mean, std::abs(got_m - m) / std::max(std::abs(m), 1e-6));
       worst_var = std::max(worst_var, std::abs(got_v - v) / std::max(v, 1e-12));
-      REQUIRE(result[static_cast<std::size_t>(c)][p] == render[static_cast<std::size_t>(c)][p]);
+      // The result is the blend (1 - alpha) render + alpha denoised.
+      const auto cc = static_cast<std::size_t>(c);
+      const double a = alpha[cc][p], x = render[cc][p], y = denoised[cc][p];
+      REQUIRE(a >= 0.0);
+      REQUIRE(a <= 1.0);
+      REQUIRE(std::isfinite(sure[cc][p]));
+      REQUIRE(result[cc][p] == Approx((1 - a) * x + a * y).margin(1e-6 * std::abs(x) + 1e-7));
     }
   }
   INFO("worst relative error: mean " << worst_mean << ", variance " << worst_var);
@@ -163,6 +172,8 @@ TEST_CASE(
     CHECK(j["layout"]["name"] == "HDR+ALB+NRM+DEP");
     CHECK(j["variance_source"] == "between_passes");
     CHECK(j["low_confidence"] == false);
+    CHECK(j["inputs_used"] == "HDR+ALB+NRM+DEP");
+    CHECK(j["pipeline"]["denoiser"] == "nlmeans");
     check_against_independent(set, out);
   }
 }
@@ -230,6 +241,25 @@ TEST_CASE("eval: the accumulated render beats a single pass and a reference made
   const Run r2 = proden("eval --json --ref " + ps[0] + " --ref " + ps[1] + " " + ps[0], s);
   REQUIRE(r2.code == 0);
   CHECK(nlohmann::json::parse(r2.out)["results"][0]["rmse"].get<double>() > 0);
+}
+
+TEST_CASE("the pipeline's result beats the render and matches the better of render and denoised",
+          "[cli][real]") {
+  Scratch s;
+  for (const std::string set : {"cornell", "textured_dof"}) {
+    const std::string out = s.file(set + ".exr");
+    REQUIRE(proden("denoise -q --aov --out " + out + join(passes(set)), s).code == 0);
+    const Run r = proden("eval --json --layer render --layer denoised --layer result --ref " +
+                             sample("renders/" + set + "/reference.exr") + " " + out,
+                         s);
+    REQUIRE(r.code == 0);
+    const auto j = nlohmann::json::parse(r.out)["results"];
+    REQUIRE(j.size() == 3);
+    const double render = j[0]["relmse"], denoised = j[1]["relmse"], result = j[2]["relmse"];
+    INFO(set << ": relMSE render " << render << " denoised " << denoised << " result " << result);
+    CHECK(result < 0.8 * render);
+    CHECK(result <= 1.05 * std::min(render, denoised));
+  }
 }
 
 TEST_CASE("info reports renderer, size, channels and spp", "[cli][real]") {

@@ -49,4 +49,9 @@ Pass read_pass(const std::string& path, const ReadOptions& options = {}, PassInf
 // Reads the RGB colour of any image proden reads or writes (passes, references, outputs).
 Image read_rgb(const std::string& path, const ReadOptions& options = {});
 
+// Reads the RGB channels "<layer>.{R,G,B}" (e.g. proden's "render", "denoised" AOVs); "" or
+// "result" reads the image's own colour as read_rgb() does.
+Image read_layer(const std::string& path, const std::string& layer,
+                 const ReadOptions& options = {});
+
 }  // namespace proden::io

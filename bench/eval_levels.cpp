@@ -1,0 +1,184 @@
+// Accuracy and time per sample level: for a scene directory of passes, accumulates each level,
+// runs the pipeline, and reports RMSE/relMSE/SMAPE of render, denoised and result against the
+// reference (the mean of reference passes, with their own variance subtracted from the MSE).
+//
+// Layouts: DIR/spp<L>/pass_*.exr with DIR/reference/pass_*.exr (bench/render_eval_set.sh), or
+// DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level.
+#include <tbb/global_control.h>
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "proden/accumulator.hpp"
+#include "proden/io/pass_reader.hpp"
+#include "proden/metrics.hpp"
+#include "proden/progressive.hpp"
+
+namespace fs = std::filesystem;
+using namespace proden;
+using nlohmann::json;
+
+namespace {
+
+std::vector<std::string> exr_files(const fs::path& dir, const std::string& prefix = "pass_") {
+  std::vector<std::string> out;
+  if (!fs::is_directory(dir)) return out;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string n = e.path().filename().string();
+    if (e.is_regular_file() && n.rfind(prefix, 0) == 0 && e.path().extension() == ".exr") {
+      out.push_back(e.path().string());
+    }
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+FrameAccumulator accumulate(const std::vector<std::string>& files, bool features) {
+  io::ReadOptions o;
+  o.features = features;
+  FrameAccumulator f;
+  for (const auto& p : files) f.add(io::read_pass(p, o), p);
+  return f;
+}
+
+double mean_of(const Image& img) {
+  double s = 0;
+  for (float v : img.data()) s += v;
+  return s / static_cast<double>(img.data().size());
+}
+
+json metrics_json(const Image& img, const Image& ref, double ref_var) {
+  const ErrorMetrics m = compute_metrics(img, ref);
+  return {{"rmse", m.rmse},
+          {"relmse", m.relmse},
+          {"smape", m.smape},
+          {"mse", m.mse},
+          {"mse_corrected", std::max(m.mse - ref_var, 0.0)}};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"proden accuracy per sample level"};
+  std::string dir;
+  std::string levels_csv;
+  bool as_json = false, no_features = false;
+  int threads = 0;
+  PipelineOptions po;
+  std::string rule = "stein", divergence = "auto";
+  app.add_option("--scene", dir, "Scene directory")->required();
+  app.add_option("--levels", levels_csv, "Comma-separated spp levels (default: all found)");
+  app.add_flag("--json", as_json, "JSON lines output");
+  app.add_flag("--no-features", no_features, "Colour only");
+  app.add_option("--threads", threads, "Threads (0 = all)");
+  app.add_option("--mixer-radius", po.mixer.radius);
+  app.add_option("--rule", rule)->check(CLI::IsMember({"stein", "inverse-error"}));
+  app.add_option("--divergence", divergence)->check(CLI::IsMember({"auto", "analytic", "mc"}));
+  app.add_option("--search-radius", po.nlmeans.search_radius);
+  app.add_option("--patch-radius", po.nlmeans.patch_radius);
+  app.add_option("--k", po.nlmeans.k);
+  app.add_option("--k-feature", po.nlmeans.k_feature);
+  app.add_option("--tile", po.tile);
+  bool no_ttest = false;
+  app.add_flag("--no-ttest", no_ttest);
+  CLI11_PARSE(app, argc, argv);
+  po.t_test = !no_ttest;
+  po.features = !no_features;
+  po.mixer.rule = rule == "stein" ? ClosedFormRule::stein : ClosedFormRule::inverse_error;
+  po.divergence = divergence == "analytic" ? DivergenceMethod::analytic
+                  : divergence == "mc"     ? DivergenceMethod::monte_carlo
+                                           : DivergenceMethod::automatic;
+  std::unique_ptr<tbb::global_control> limit;
+  if (threads > 0) {
+    limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                  static_cast<std::size_t>(threads));
+  }
+
+  // Levels and reference.
+  std::map<int, std::vector<std::string>> levels;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string n = e.path().filename().string();
+    if (e.is_directory() && n.rfind("spp", 0) == 0)
+      levels[std::stoi(n.substr(3))] = exr_files(e.path());
+  }
+  std::vector<std::string> ref_files = exr_files(fs::path(dir) / "reference");
+  if (levels.empty()) {
+    const auto passes = exr_files(dir);
+    if (passes.empty()) {
+      std::fprintf(stderr, "no passes in %s\n", dir.c_str());
+      return 2;
+    }
+    levels[0] = passes;  // spp filled in from the files
+    ref_files = {(fs::path(dir) / "reference.exr").string()};
+  }
+  if (!levels_csv.empty()) {
+    std::map<int, std::vector<std::string>> keep;
+    std::stringstream ss(levels_csv);
+    std::string tok;
+    while (std::getline(ss, tok, ',')) {
+      const int l = std::stoi(tok);
+      if (levels.count(l)) keep[l] = levels[l];
+    }
+    levels = keep;
+  }
+  const FrameAccumulator ref_frame = accumulate(ref_files, false);
+  const FrameEstimate ref_est = ref_frame.estimate({.halves = false, .features = false});
+  const double ref_var = ref_frame.passes() >= 2 ? mean_of(ref_est.variance) : 0.0;
+
+  if (!as_json) {
+    std::printf("scene %s, reference %d pass(es) %.0f spp (mean variance %.3g)\n", dir.c_str(),
+                ref_frame.passes(), ref_frame.total_spp(), ref_var);
+    std::printf("%6s %-9s %10s %10s %10s %10s | %8s %8s\n", "spp", "image", "RMSE", "relMSE",
+                "SMAPE", "est.MSE", "time s", "");
+  }
+  for (const auto& [level, files] : levels) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const FrameAccumulator f = accumulate(files, !no_features);
+    const FrameEstimate est = f.estimate({.halves = false, .features = !no_features});
+    const auto t1 = std::chrono::steady_clock::now();
+    const PipelineResult r = run_pipeline(est, po);
+    const double acc_s = std::chrono::duration<double>(t1 - t0).count();
+    json row = {
+        {"scene", fs::path(dir).filename().string()},
+        {"spp", f.total_spp()},
+        {"passes", f.passes()},
+        {"inputs",
+         Layout{r.inputs.albedo, r.inputs.normal, r.inputs.depth, f.layout().variance}.to_string()},
+        {"render", metrics_json(est.mean, ref_est.mean, ref_var)},
+        {"denoised", metrics_json(r.denoised, ref_est.mean, ref_var)},
+        {"result", metrics_json(r.result, ref_est.mean, ref_var)},
+        {"estimated_mse_render", mean_of(est.variance)},
+        {"estimated_mse_denoised", mean_of(r.sure)},
+        {"seconds",
+         {{"read_accumulate", acc_s},
+          {"pipeline_wall", r.timings.wall},
+          {"denoise_cpu", r.timings.denoise},
+          {"sure_cpu", r.timings.sure},
+          {"mixer_cpu", r.timings.mixer},
+          {"ttest_cpu", r.timings.ttest},
+          {"compose_cpu", r.timings.compose}}}};
+    if (as_json) {
+      std::cout << row.dump() << "\n";
+    } else {
+      for (const char* k : {"render", "denoised", "result"}) {
+        const auto& m = row[k];
+        std::printf("%6.0f %-9s %10.5f %10.5f %10.5f %10.3g | %8.3f\n", f.total_spp(), k,
+                    m["rmse"].get<double>(), m["relmse"].get<double>(), m["smape"].get<double>(),
+                    std::string(k) == "render"     ? row["estimated_mse_render"].get<double>()
+                    : std::string(k) == "denoised" ? row["estimated_mse_denoised"].get<double>()
+                                                   : 0.0,
+                    r.timings.wall);
+      }
+    }
+  }
+  return 0;
+}

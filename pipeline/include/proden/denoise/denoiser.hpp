@@ -1,0 +1,35 @@
+// The denoiser interface: y = F(x, features) over a region, reading inputs within radius() of it.
+// Built-in filters and adapters (external programs, the renderer's own) implement it; the
+// progressive pipeline treats them uniformly and uses the Jacobian diagonal when one is offered.
+#pragma once
+
+#include <string>
+
+#include "proden/region.hpp"
+
+namespace proden {
+
+// Full-frame inputs (views over the whole image, or over a region that covers every pixel the
+// denoiser reads). Feature views are invalid when the frame has no such feature.
+struct DenoiseInputs {
+  int width = 0, height = 0;  // of the full image
+  View colour;                // x, 3 channels
+  View variance;              // Var[x], 3 channels
+  View albedo, normal, depth;
+  View albedo_variance, normal_variance, depth_variance;
+};
+
+class Denoiser {
+ public:
+  virtual ~Denoiser() = default;
+  virtual std::string name() const = 0;
+  // How far outside the output region inputs are read (the tile halo it needs).
+  virtual int radius() const = 0;
+  // True if denoise() can fill dydx with the Jacobian diagonal dy_p/dx_p per channel.
+  virtual bool has_derivative() const = 0;
+  // Computes y (and dydx when non-null and supported) over `out`, which must lie in the image.
+  // y and dydx must be 3-channel buffers covering `out`.
+  virtual void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const = 0;
+};
+
+}  // namespace proden

@@ -1,0 +1,38 @@
+// Built-in denoiser: feature-guided non-local means after Rousselle, Knaus & Zwicker 2012
+// (variance-normalised patch distance) with Rousselle et al. 2013's cross-bilateral feature
+// weights. y_p = sum_q w_pq x_q / sum_q w_pq: linear in x once the weights are fixed. It also
+// returns the exact Jacobian diagonal dy_p/dx_p, weights' dependence on x included, so SURE needs
+// no extra denoiser runs (exact away from the image border; within search+patch radius of it the
+// replicated border copies' contribution to the weight derivative is ignored).
+#pragma once
+
+#include "proden/denoise/denoiser.hpp"
+
+namespace proden {
+
+struct NlMeansParams {
+  int search_radius = 7;   // r: (2r+1)^2 candidate pixels
+  int patch_radius = 3;    // f: (2f+1)^2 patch
+  float k = 0.45f;         // colour damping: larger blurs more
+  float alpha = 1.0f;      // variance cancellation strength
+  float epsilon = 1e-10f;  // guards the distance's denominator
+  bool use_features = true;
+  float k_feature = 0.6f;     // feature damping
+  float tau = 1e-3f;          // floor of a feature's variance in its distance
+  float depth_scale = 0.02f;  // relative depth difference that counts as one feature "sigma"
+};
+
+class NlMeansDenoiser final : public Denoiser {
+ public:
+  explicit NlMeansDenoiser(NlMeansParams params = {});
+  std::string name() const override { return "nlmeans"; }
+  int radius() const override { return params_.search_radius + params_.patch_radius; }
+  bool has_derivative() const override { return true; }
+  void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const override;
+  const NlMeansParams& params() const { return params_; }
+
+ private:
+  NlMeansParams params_;
+};
+
+}  // namespace proden

@@ -1,0 +1,51 @@
+// Per-pixel mixing weight alpha of z = x + alpha (y - x): the interface the learned network and
+// the closed-form baseline share, and the closed-form mixer itself.
+#pragma once
+
+#include <string>
+
+#include "proden/region.hpp"
+
+namespace proden {
+
+// Everything a mixer may read, as views covering at least out.expanded(radius()) ∩ image.
+struct MixInputs {
+  int width = 0, height = 0;
+  View x, y, variance, sure, divergence;  // 3 channels each
+};
+
+class Mixer {
+ public:
+  virtual ~Mixer() = default;
+  virtual std::string name() const = 0;
+  virtual int radius() const = 0;
+  // alpha in [0, 1] per pixel and channel over `out` (a 3-channel buffer covering it).
+  virtual void mix(const MixInputs& in, const Rect& out, Buffer& alpha) const = 0;
+};
+
+enum class ClosedFormRule {
+  // alpha = S(var - div) / S((y - x)^2): the MSE-optimal blend when y depends on x, by Stein's
+  // lemma (E[(x - mu)(y - x)] = div - var); reduces to inverse-error weighting when y is
+  // independent of x. S is a window sum weighted by 1/var (see ClosedFormMixer::mix).
+  stein,
+  // alpha = S(var) / (S(var) + max(S(SURE), 0)): inverse-error weighting (design.md baseline).
+  inverse_error,
+};
+
+struct ClosedFormParams {
+  ClosedFormRule rule = ClosedFormRule::stein;
+  int radius = 3;  // box window (2r+1)^2 that smooths the noisy per-pixel estimates
+};
+
+class ClosedFormMixer final : public Mixer {
+ public:
+  explicit ClosedFormMixer(ClosedFormParams p = {}) : params_(p) {}
+  std::string name() const override;
+  int radius() const override { return params_.radius + 1; }  // + the weights' 3x3
+  void mix(const MixInputs& in, const Rect& out, Buffer& alpha) const override;
+
+ private:
+  ClosedFormParams params_;
+};
+
+}  // namespace proden

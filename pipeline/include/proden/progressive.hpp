@@ -1,0 +1,62 @@
+// The progressive denoising pipeline over one frame (Firmino, Frisvad & Jensen 2022):
+// denoise x into y, estimate SURE, mix with a per-pixel alpha, shrink alpha with the t-test,
+// compose z = x + alpha' (y - x). Runs in tiles (in parallel) with a halo equal to the stages'
+// summed footprints, so a tiled run equals the whole-image run.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "proden/accumulator.hpp"
+#include "proden/denoise/denoiser.hpp"
+#include "proden/denoise/nlmeans.hpp"
+#include "proden/mixer.hpp"
+#include "proden/sure.hpp"
+#include "proden/tstat.hpp"
+
+namespace proden {
+
+enum class DivergenceMethod {
+  automatic,  // analytic when the denoiser offers its Jacobian diagonal, else Monte Carlo
+  analytic,
+  monte_carlo,
+};
+
+struct PipelineOptions {
+  NlMeansParams nlmeans;  // the built-in denoiser (used when no denoiser is passed)
+  bool features = true;   // let the denoiser use albedo/normal/depth when present
+  DivergenceMethod divergence = DivergenceMethod::automatic;
+  MonteCarloProbes probes;
+  ClosedFormParams mixer;  // used when no mixer is passed
+  bool t_test = true;
+  TTestParams ttest;
+  int tile = 128;  // inner tile size in pixels
+};
+
+// CPU seconds per stage summed over tiles (so with N threads they add up to about N x wall),
+// and the wall time of the whole run.
+struct StageTimings {
+  double denoise = 0, sure = 0, mixer = 0, ttest = 0, compose = 0;
+  double wall = 0;
+};
+
+struct PipelineResult {
+  Image result;    // z
+  Image denoised;  // y
+  Image alpha;     // alpha' (after the t-test, or the mixer's alpha with t_test off)
+  Image sure;      // SURE of y
+  StageTimings timings;
+  std::string denoiser, mixer, divergence;
+  Layout inputs;  // what the denoiser actually used
+  int halo = 0;
+  bool noise_free = false;  // Var[x] == 0 everywhere: nothing to denoise, z = x
+};
+
+// Halo the tiles need for these stages.
+int pipeline_halo(const Denoiser& denoiser, const Mixer& mixer, const PipelineOptions& options);
+
+// Runs the pipeline. `denoiser`/`mixer` default to NL-means and the closed-form mixer.
+PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& options,
+                            const Denoiser* denoiser = nullptr, const Mixer* mixer = nullptr);
+
+}  // namespace proden

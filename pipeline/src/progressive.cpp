@@ -1,0 +1,193 @@
+#include "proden/progressive.hpp"
+
+#include <tbb/combinable.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+#include <vector>
+
+namespace proden {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds(Clock::time_point a, Clock::time_point b) {
+  return std::chrono::duration<double>(b - a).count();
+}
+
+// Limits beyond which squares of differences would overflow float inside the stages.
+constexpr float kMaxValue = 1e18f;
+constexpr float kMaxVariance = 1e36f;
+
+Image sanitized(const Image& img, float lo, float hi) {
+  Image out = img;
+  for (float& v : out.data()) v = std::isfinite(v) ? std::clamp(v, lo, hi) : 0.0f;
+  return out;
+}
+
+bool all_zero(const Image& img) {
+  const auto d = img.data();
+  return std::all_of(d.begin(), d.end(), [](float v) { return v == 0.0f; });
+}
+
+}  // namespace
+
+int pipeline_halo(const Denoiser& denoiser, const Mixer& mixer, const PipelineOptions& options) {
+  return denoiser.radius() + mixer.radius() + (options.t_test ? options.ttest.radius : 0);
+}
+
+PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& options,
+                            const Denoiser* denoiser_in, const Mixer* mixer_in) {
+  const auto t_start = Clock::now();
+  if (frame.mean.empty() || frame.mean.channels() != 3 || !frame.variance.same_size(frame.mean)) {
+    throw std::invalid_argument("run_pipeline: the frame has no RGB mean/variance");
+  }
+  if (options.tile < 1) throw std::invalid_argument("run_pipeline: tile must be >= 1");
+  const int W = frame.mean.width(), H = frame.mean.height();
+
+  NlMeansParams nlp = options.nlmeans;
+  nlp.use_features = nlp.use_features && options.features;
+  const NlMeansDenoiser builtin(nlp);
+  const ClosedFormMixer closed(options.mixer);
+  const Denoiser& denoiser = denoiser_in ? *denoiser_in : builtin;
+  const Mixer& mixer = mixer_in ? *mixer_in : closed;
+
+  PipelineResult res;
+  res.denoiser = denoiser.name();
+  res.mixer = mixer.name();
+  const bool analytic =
+      options.divergence == DivergenceMethod::analytic ||
+      (options.divergence == DivergenceMethod::automatic && denoiser.has_derivative());
+  if (analytic && !denoiser.has_derivative()) {
+    throw std::invalid_argument("run_pipeline: denoiser " + denoiser.name() +
+                                " has no Jacobian diagonal for the analytic divergence");
+  }
+  res.divergence = analytic ? "analytic" : "monte-carlo";
+  res.halo = pipeline_halo(denoiser, mixer, options);
+
+  const Image x = sanitized(frame.mean, -kMaxValue, kMaxValue);
+  const Image var = sanitized(frame.variance, 0.0f, kMaxVariance);
+  res.result = x;
+  res.denoised = x;
+  res.alpha = Image(W, H, 3, 0.0f);
+  res.sure = Image(W, H, 3, 0.0f);
+
+  // Simulate only what the frame calls for: a noise-free frame has nothing to denoise.
+  if (all_zero(var)) {
+    res.noise_free = true;
+    res.timings.wall = seconds(t_start, Clock::now());
+    return res;
+  }
+
+  DenoiseInputs din;
+  din.width = W;
+  din.height = H;
+  din.colour = view_of(x);
+  din.variance = view_of(var);
+  if (options.features && nlp.use_features) {
+    din.albedo = view_of(frame.albedo);
+    din.normal = view_of(frame.normal);
+    din.depth = view_of(frame.depth);
+    din.albedo_variance = view_of(frame.albedo_variance);
+    din.normal_variance = view_of(frame.normal_variance);
+    din.depth_variance = view_of(frame.depth_variance);
+  }
+  res.inputs = {din.albedo.valid(), din.normal.valid(), din.depth.valid(), false};
+
+  const Rect image{0, 0, W, H};
+  const int T = options.tile;
+  const int tiles_x = (W + T - 1) / T, tiles_y = (H + T - 1) / T;
+  const int mix_pad = mixer.radius() + (options.t_test ? options.ttest.radius : 0);
+  const int t_pad = options.t_test ? options.ttest.radius : 0;
+
+  struct Times {
+    double denoise = 0, sure = 0, mixer = 0, ttest = 0, compose = 0;
+  };
+  tbb::combinable<Times> times;
+
+  tbb::parallel_for(0, tiles_x * tiles_y, [&](int t) {
+    Times& tm = times.local();
+    const Rect inner = Rect{(t % tiles_x) * T, (t / tiles_x) * T, 0, 0};
+    const Rect tile{inner.x0, inner.y0, std::min(inner.x0 + T, W), std::min(inner.y0 + T, H)};
+    const Rect r_den = tile.expanded(mix_pad).intersect(image);  // y, SURE needed here
+    const Rect r_mix = tile.expanded(t_pad).intersect(image);    // alpha needed here
+
+    auto t0 = Clock::now();
+    Buffer y(r_den, 3), dydx(r_den, 3), div(r_den, 3), sure_buf(r_den, 3);
+    denoiser.denoise(din, r_den, y, analytic ? &dydx : nullptr);
+    auto t1 = Clock::now();
+    if (analytic) {
+      divergence_from_derivative(din.variance, dydx, r_den, div);
+    } else {
+      divergence_monte_carlo(denoiser, din, r_den, y, options.probes, div);
+    }
+    sure(din.colour, din.variance, y, div, r_den, sure_buf);
+    auto t2 = Clock::now();
+
+    MixInputs mi{W, H, din.colour, y.view(), din.variance, sure_buf.view(), div.view()};
+    Buffer alpha(r_mix, 3);
+    mixer.mix(mi, r_mix, alpha);
+    auto t3 = Clock::now();
+
+    Buffer alpha_final(tile, 3);
+    if (options.t_test) {
+      Buffer z(r_mix, 3);
+      for (int c = 0; c < 3; ++c) {
+        for (int py = r_mix.y0; py < r_mix.y1; ++py) {
+          for (int px = r_mix.x0; px < r_mix.x1; ++px) {
+            const float xv = x.at(px, py, c);
+            z.at(px, py, c) = xv + alpha.at(px, py, c) * (y.at(px, py, c) - xv);
+          }
+        }
+      }
+      t_rescale(din.colour, din.variance, z.view(), alpha.view(), W, H, tile, options.ttest,
+                alpha_final);
+    } else {
+      for (int c = 0; c < 3; ++c) {
+        for (int py = tile.y0; py < tile.y1; ++py) {
+          for (int px = tile.x0; px < tile.x1; ++px)
+            alpha_final.at(px, py, c) = alpha.at(px, py, c);
+        }
+      }
+    }
+    auto t4 = Clock::now();
+
+    for (int c = 0; c < 3; ++c) {
+      for (int py = tile.y0; py < tile.y1; ++py) {
+        for (int px = tile.x0; px < tile.x1; ++px) {
+          const float xv = x.at(px, py, c);
+          const float yv = y.at(px, py, c);
+          const float a = alpha_final.at(px, py, c);
+          // Written as a convex combination so z stays within [min(x, y), max(x, y)].
+          float z = (1.0f - a) * xv + a * yv;
+          z = std::clamp(z, std::min(xv, yv), std::max(xv, yv));
+          res.result.at(px, py, c) = z;
+          res.denoised.at(px, py, c) = yv;
+          res.alpha.at(px, py, c) = a;
+          res.sure.at(px, py, c) = sure_buf.at(px, py, c);
+        }
+      }
+    }
+    auto t5 = Clock::now();
+    tm.denoise += seconds(t0, t1);
+    tm.sure += seconds(t1, t2);
+    tm.mixer += seconds(t2, t3);
+    tm.ttest += seconds(t3, t4);
+    tm.compose += seconds(t4, t5);
+  });
+
+  times.combine_each([&](const Times& tm) {
+    res.timings.denoise += tm.denoise;
+    res.timings.sure += tm.sure;
+    res.timings.mixer += tm.mixer;
+    res.timings.ttest += tm.ttest;
+    res.timings.compose += tm.compose;
+  });
+  res.timings.wall = seconds(t_start, Clock::now());
+  return res;
+}
+
+}  // namespace proden
