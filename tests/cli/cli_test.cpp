@@ -234,8 +234,9 @@ TEST_CASE("eval: the accumulated render beats a single pass and a reference made
                        s);
   REQUIRE(r.code == 0);
   const auto j = nlohmann::json::parse(r.out);
-  // 8 passes: RMSE should fall by about sqrt(8); require at least 2x.
-  CHECK(j["results"][1]["rmse"].get<double>() * 2 < j["results"][0]["rmse"].get<double>());
+  // 8 passes: the render's MSE falls by ~8x (RMSE is dominated by a few fireflies, so compare
+  // relMSE), and the denoised result does better still; require 4x.
+  CHECK(j["results"][1]["relmse"].get<double>() * 4 < j["results"][0]["relmse"].get<double>());
   // Reference given as passes: their mean.
   const auto ps = passes("cornell");
   const Run r2 = proden("eval --json --ref " + ps[0] + " --ref " + ps[1] + " " + ps[0], s);

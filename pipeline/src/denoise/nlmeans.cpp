@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "../fast_math.hpp"
+#include "../simd.hpp"
 
 namespace proden {
 namespace {
@@ -38,6 +39,184 @@ Padded pad(const View& v, const Rect& rect, int width, int height) {
   return p;
 }
 
+// Everything one search offset needs: padded tile planes and the tile's accumulators.
+struct Kernel {
+  int R, F, P;     // search radius, patch radius, R + F
+  int ow, oh, pw;  // output size, padded row stride
+  int ew, eh;      // patch-extended region (output + F on each side)
+  const float* X[3];
+  const float* V[3];
+  const float* alb[3] = {nullptr, nullptr, nullptr};
+  const float* alb_v[3] = {nullptr, nullptr, nullptr};
+  const float* nrm[3] = {nullptr, nullptr, nullptr};
+  const float* nrm_v[3] = {nullptr, nullptr, nullptr};
+  const float* dep = nullptr;
+  float k2, alpha, eps, inv_patch3, inv_kf2, tau, depth_scale;
+  bool derivative;
+  // Scratch.
+  float* dist;      // ew * eh
+  float* inv_s[3];  // ew * eh per channel: 1 / (eps + k^2 (v_a + v_{a+delta}))
+  float* hsum;      // ow * eh
+  float* dpatch;    // ow * oh
+  float* fdist;     // ow * oh
+  float* w;         // ow (one row of weights)
+  // Accumulators (ow * oh, planar per channel where 3).
+  float* wsum;
+  float* self;
+  float* num;
+  float* A;
+  float* B;
+  const int* gx;  // global x of each output column
+  int gy0, width, height;
+};
+
+PRODEN_MULTIVERSION void feature_distance(const Kernel& k, std::ptrdiff_t doff) {
+  const std::size_t n = static_cast<std::size_t>(k.ow) * static_cast<std::size_t>(k.oh);
+  for (std::size_t i = 0; i < n; ++i) k.fdist[i] = 0.0f;
+  for (int oy = 0; oy < k.oh; ++oy) {
+    const std::size_t base = static_cast<std::size_t>(oy + k.P) * static_cast<std::size_t>(k.pw) +
+                             static_cast<std::size_t>(k.P);
+    float* __restrict frow =
+        k.fdist + static_cast<std::size_t>(oy) * static_cast<std::size_t>(k.ow);
+    auto vec3 = [&](const float* const* f, const float* const* fv) {
+      const float *f0 = f[0] + base, *f1 = f[1] + base, *f2 = f[2] + base;
+      const float *v0 = fv[0] + base, *v1 = fv[1] + base, *v2 = fv[2] + base;
+      for (int ox = 0; ox < k.ow; ++ox) {
+        const float d0 = f0[ox] - f0[ox + doff], d1 = f1[ox] - f1[ox + doff],
+                    d2 = f2[ox] - f2[ox + doff];
+        const float a0 = v0[ox], b0 = v0[ox + doff], a1 = v1[ox], b1 = v1[ox + doff], a2 = v2[ox],
+                    b2 = v2[ox + doff];
+        const float cancel =
+            (a0 + (a0 < b0 ? a0 : b0)) + (a1 + (a1 < b1 ? a1 : b1)) + (a2 + (a2 < b2 ? a2 : b2));
+        const float vs = a0 + b0 + a1 + b1 + a2 + b2;
+        const float d =
+            (d0 * d0 + d1 * d1 + d2 * d2 - cancel) / (vs > k.tau ? vs : k.tau) * k.inv_kf2;
+        frow[ox] = frow[ox] > d ? frow[ox] : d;
+      }
+    };
+    if (k.alb[0]) vec3(k.alb, k.alb_v);
+    if (k.nrm[0]) vec3(k.nrm, k.nrm_v);
+    if (k.dep) {
+      const float* zp = k.dep + base;
+      for (int ox = 0; ox < k.ow; ++ox) {
+        const float z0 = zp[ox], z1 = zp[ox + doff];
+        const float az0 = z0 < 0.0f ? -z0 : z0, az1 = z1 < 0.0f ? -z1 : z1;
+        const float scale = k.depth_scale * (az0 + az1) * 0.5f + 1e-6f;
+        const float rel = (z0 - z1) / scale;
+        const float d = rel * rel * k.inv_kf2;
+        frow[ox] = frow[ox] > d ? frow[ox] : d;
+      }
+    }
+  }
+}
+
+PRODEN_MULTIVERSION void accumulate_offset(const Kernel& k, int dx, int dy, bool features) {
+  const std::ptrdiff_t doff = static_cast<std::ptrdiff_t>(dy) * k.pw + dx;
+  const std::size_t ew = static_cast<std::size_t>(k.ew), ow = static_cast<std::size_t>(k.ow);
+  const int taps = 2 * k.F + 1;
+  // 1. Per-pixel colour distance d(a, a + delta) over the patch-extended region; the inverse
+  // denominators are kept for the derivative below.
+  for (int ey = 0; ey < k.eh; ++ey) {
+    const std::size_t base = static_cast<std::size_t>(ey + k.R) * static_cast<std::size_t>(k.pw) +
+                             static_cast<std::size_t>(k.R);
+    const std::size_t erow = static_cast<std::size_t>(ey) * ew;
+    float* __restrict drow = k.dist + erow;
+    for (std::size_t ex = 0; ex < ew; ++ex) drow[ex] = 0.0f;
+    for (int c = 0; c < 3; ++c) {
+      const float* xa = k.X[c] + base;
+      const float* va = k.V[c] + base;
+      float* __restrict inv = k.inv_s[c] + erow;
+      for (std::size_t ex = 0; ex < ew; ++ex) {
+        const float diff = xa[ex] - xa[ex + doff], a = va[ex], b = va[ex + doff];
+        const float is = 1.0f / (k.eps + k.k2 * (a + b));
+        inv[ex] = is;
+        drow[ex] += (diff * diff - k.alpha * (a + (a < b ? a : b))) * is;
+      }
+    }
+  }
+  // 2. Box filter over the patch (separable), scaled to a mean over patch and channels.
+  for (int ey = 0; ey < k.eh; ++ey) {
+    const float* drow = k.dist + static_cast<std::size_t>(ey) * ew;
+    float* __restrict hrow = k.hsum + static_cast<std::size_t>(ey) * ow;
+    for (std::size_t ox = 0; ox < ow; ++ox) hrow[ox] = drow[ox];
+    for (int j = 1; j < taps; ++j) {
+      for (std::size_t ox = 0; ox < ow; ++ox) hrow[ox] += drow[ox + static_cast<std::size_t>(j)];
+    }
+  }
+  for (int oy = 0; oy < k.oh; ++oy) {
+    float* __restrict prow = k.dpatch + static_cast<std::size_t>(oy) * ow;
+    const float* h0 = k.hsum + static_cast<std::size_t>(oy) * ow;
+    for (std::size_t ox = 0; ox < ow; ++ox) prow[ox] = h0[ox];
+    for (int i = 1; i < taps; ++i) {
+      const float* hrow = k.hsum + static_cast<std::size_t>(oy + i) * ow;
+      for (std::size_t ox = 0; ox < ow; ++ox) prow[ox] += hrow[ox];
+    }
+    for (std::size_t ox = 0; ox < ow; ++ox) prow[ox] *= k.inv_patch3;
+  }
+  // 3. Weights and accumulation; the weights' derivative w.r.t. the centre pixel: p appears as
+  // the first pixel of the o = 0 pair, and as the second of the o = -delta pair when that offset
+  // lies inside the patch.
+  const bool second = (dx < 0 ? -dx : dx) <= k.F && (dy < 0 ? -dy : dy) <= k.F;
+  const std::size_t n_out = ow * static_cast<std::size_t>(k.oh);
+  for (int oy = 0; oy < k.oh; ++oy) {
+    const int gy = k.gy0 + oy;
+    const int qy = gy + dy < 0 ? 0 : (gy + dy >= k.height ? k.height - 1 : gy + dy);
+    const bool same_y = qy == gy;
+    const std::size_t prow = static_cast<std::size_t>(oy + k.P) * static_cast<std::size_t>(k.pw) +
+                             static_cast<std::size_t>(k.P);
+    const std::size_t orow = static_cast<std::size_t>(oy) * ow;
+    const float* dp = k.dpatch + orow;
+    const float* fd = features ? k.fdist + orow : nullptr;
+    float* __restrict wrow = k.w;
+    float* __restrict ws = k.wsum + orow;
+    float* __restrict sf = k.self + orow;
+    for (std::size_t ox = 0; ox < ow; ++ox) {
+      const float dc = dp[ox] > 0.0f ? dp[ox] : 0.0f;
+      const float f = fd ? (fd[ox] > 0.0f ? fd[ox] : 0.0f) : 0.0f;
+      wrow[ox] = detail::exp_neg(-(dc + f));
+      ws[ox] += wrow[ox];
+    }
+    if (same_y) {
+      for (std::size_t ox = 0; ox < ow; ++ox) {
+        const int gx = k.gx[ox];
+        const int qx = gx + dx < 0 ? 0 : (gx + dx >= k.width ? k.width - 1 : gx + dx);
+        sf[ox] += qx == gx ? wrow[ox] : 0.0f;
+      }
+    }
+    for (int c = 0; c < 3; ++c) {
+      const float* xp = k.X[c] + prow;
+      float* __restrict nu = k.num + static_cast<std::size_t>(c) * n_out + orow;
+      for (std::size_t ox = 0; ox < ow; ++ox) nu[ox] += wrow[ox] * xp[ox + doff];
+      if (!k.derivative) continue;
+      float* __restrict a = k.A + static_cast<std::size_t>(c) * n_out + orow;
+      float* __restrict b = k.B + static_cast<std::size_t>(c) * n_out + orow;
+      const float scale = 2.0f * k.inv_patch3;
+      // inv_s in E coordinates: p is at (ox + F, oy + F), p - delta at (ox + F - dx, oy + F - dy).
+      const float* is_p =
+          k.inv_s[c] + static_cast<std::size_t>(oy + k.F) * ew + static_cast<std::size_t>(k.F);
+      if (second) {
+        const float* is_a =
+            is_p - (static_cast<std::ptrdiff_t>(dy) * static_cast<std::ptrdiff_t>(ew) + dx);
+        for (std::size_t ox = 0; ox < ow; ++ox) {
+          const float xc = xp[ox], xq = xp[ox + doff], xa = xp[ox - doff];
+          const float g = (xc - xq) * is_p[ox] + (xc - xa) * is_a[ox];
+          const float dw = dp[ox] > 0.0f ? -wrow[ox] * g * scale : 0.0f;
+          a[ox] += dw * xq;
+          b[ox] += dw;
+        }
+      } else {
+        for (std::size_t ox = 0; ox < ow; ++ox) {
+          const float xc = xp[ox], xq = xp[ox + doff];
+          const float g = (xc - xq) * is_p[ox];
+          const float dw = dp[ox] > 0.0f ? -wrow[ox] * g * scale : 0.0f;
+          a[ox] += dw * xq;
+          b[ox] += dw;
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 
 NlMeansDenoiser::NlMeansDenoiser(NlMeansParams params) : params_(params) {
@@ -48,188 +227,93 @@ NlMeansDenoiser::NlMeansDenoiser(NlMeansParams params) : params_(params) {
 
 void NlMeansDenoiser::denoise(const DenoiseInputs& in, const Rect& out, Buffer& y_out,
                               Buffer* dydx_out) const {
+  if (out.empty()) return;
   const int R = params_.search_radius;
   const int F = params_.patch_radius;
   const int P = R + F;
   const int ow = out.width(), oh = out.height();
-  if (out.empty()) return;
   const Rect prect = out.expanded(P);
-  const int pw = prect.width();
 
   const Padded X = pad(in.colour, prect, in.width, in.height);
   const Padded V = pad(in.variance, prect, in.width, in.height);
   const bool feats = params_.use_features;
-  Padded alb, alb_v, nrm, nrm_v, dep, dep_v;
-  const bool has_alb = feats && in.albedo.valid();
-  const bool has_nrm = feats && in.normal.valid();
-  const bool has_dep = feats && in.depth.valid();
   auto pad_or_zero = [&](const View& v, int ch) {
     if (v.valid()) return pad(v, prect, in.width, in.height);
     return Padded{prect, ch, std::vector<float>(prect.area() * static_cast<std::size_t>(ch), 0.0f)};
   };
-  if (has_alb) {
+  Padded alb, alb_v, nrm, nrm_v, dep;
+  Kernel k{};
+  k.R = R;
+  k.F = F;
+  k.P = P;
+  k.ow = ow;
+  k.oh = oh;
+  k.pw = prect.width();
+  k.ew = ow + 2 * F;
+  k.eh = oh + 2 * F;
+  for (int c = 0; c < 3; ++c) {
+    k.X[c] = X.plane(c);
+    k.V[c] = V.plane(c);
+  }
+  if (feats && in.albedo.valid()) {
     alb = pad(in.albedo, prect, in.width, in.height);
     alb_v = pad_or_zero(in.albedo_variance, 3);
+    for (int c = 0; c < 3; ++c) {
+      k.alb[c] = alb.plane(c);
+      k.alb_v[c] = alb_v.plane(c);
+    }
   }
-  if (has_nrm) {
+  if (feats && in.normal.valid()) {
     nrm = pad(in.normal, prect, in.width, in.height);
     nrm_v = pad_or_zero(in.normal_variance, 3);
+    for (int c = 0; c < 3; ++c) {
+      k.nrm[c] = nrm.plane(c);
+      k.nrm_v[c] = nrm_v.plane(c);
+    }
   }
-  if (has_dep) {
+  if (feats && in.depth.valid()) {
     dep = pad(in.depth, prect, in.width, in.height);
-    dep_v = pad_or_zero(in.depth_variance, 1);
+    k.dep = dep.plane(0);
   }
+  const bool features = k.alb[0] || k.nrm[0] || k.dep;
+  k.k2 = params_.k * params_.k;
+  k.alpha = params_.alpha;
+  k.eps = params_.epsilon;
+  k.inv_patch3 = 1.0f / static_cast<float>((2 * F + 1) * (2 * F + 1) * 3);
+  k.inv_kf2 = 1.0f / (params_.k_feature * params_.k_feature);
+  k.tau = params_.tau;
+  k.depth_scale = params_.depth_scale;
+  k.derivative = dydx_out != nullptr;
 
-  const std::size_t n_out = static_cast<std::size_t>(ow) * oh;
+  const std::size_t n_out = static_cast<std::size_t>(ow) * static_cast<std::size_t>(oh);
+  const std::size_t n_e = static_cast<std::size_t>(k.ew) * static_cast<std::size_t>(k.eh);
+  std::vector<float> dist(n_e), inv_s(3 * n_e);
+  std::vector<float> hsum(static_cast<std::size_t>(ow) * static_cast<std::size_t>(k.eh));
+  std::vector<float> dpatch(n_out), fdist(n_out), wrow(static_cast<std::size_t>(ow));
   std::vector<float> wsum(n_out, 0.0f), self(n_out, 0.0f);
   std::vector<float> num(3 * n_out, 0.0f), A(3 * n_out, 0.0f), B(3 * n_out, 0.0f);
-  const int ew = ow + 2 * F, eh = oh + 2 * F;
-  std::vector<float> dist(static_cast<std::size_t>(ew) * eh);
-  std::vector<float> hsum(static_cast<std::size_t>(ow) * eh);
-  std::vector<float> dpatch(n_out);
-  std::vector<float> fdist(n_out);
-  std::vector<unsigned char> same_x(static_cast<std::size_t>(ow));
-
-  const float k2 = params_.k * params_.k;
-  const float alpha = params_.alpha;
-  const float eps = params_.epsilon;
-  const float inv_patch = 1.0f / static_cast<float>((2 * F + 1) * (2 * F + 1));
-  const float inv_kf2 = 1.0f / (params_.k_feature * params_.k_feature);
-  const float tau = params_.tau;
-  const bool derivative = dydx_out != nullptr;
-  const float dscale = inv_patch / 3.0f;  // the colour distance is a mean over patch and channels
-
-  const float* Xc[3] = {X.plane(0), X.plane(1), X.plane(2)};
-  const float* Vc[3] = {V.plane(0), V.plane(1), V.plane(2)};
+  std::vector<int> gx(static_cast<std::size_t>(ow));
+  for (int ox = 0; ox < ow; ++ox) gx[static_cast<std::size_t>(ox)] = out.x0 + ox;
+  k.dist = dist.data();
+  for (int c = 0; c < 3; ++c) k.inv_s[c] = inv_s.data() + static_cast<std::size_t>(c) * n_e;
+  k.hsum = hsum.data();
+  k.dpatch = dpatch.data();
+  k.fdist = fdist.data();
+  k.w = wrow.data();
+  k.wsum = wsum.data();
+  k.self = self.data();
+  k.num = num.data();
+  k.A = A.data();
+  k.B = B.data();
+  k.gx = gx.data();
+  k.gy0 = out.y0;
+  k.width = in.width;
+  k.height = in.height;
 
   for (int dy = -R; dy <= R; ++dy) {
     for (int dx = -R; dx <= R; ++dx) {
-      const std::ptrdiff_t doff = static_cast<std::ptrdiff_t>(dy) * pw + dx;
-      // 1. Per-pixel colour distance d(a, a + delta) over the patch-extended region.
-      for (int ey = 0; ey < eh; ++ey) {
-        const std::size_t base = static_cast<std::size_t>(ey + R) * static_cast<std::size_t>(pw) +
-                                 static_cast<std::size_t>(R);
-        float* drow = dist.data() + static_cast<std::size_t>(ey) * static_cast<std::size_t>(ew);
-        for (int ex = 0; ex < ew; ++ex) drow[ex] = 0.0f;
-        for (int c = 0; c < 3; ++c) {
-          const float* xa = Xc[c] + base;
-          const float* va = Vc[c] + base;
-          const float* xb = xa + doff;
-          const float* vb = va + doff;
-          for (int ex = 0; ex < ew; ++ex) {
-            const float diff = xa[ex] - xb[ex];
-            const float vmin = va[ex] < vb[ex] ? va[ex] : vb[ex];
-            drow[ex] += (diff * diff - alpha * (va[ex] + vmin)) / (eps + k2 * (va[ex] + vb[ex]));
-          }
-        }
-      }
-      // 2. Box filter over the patch (separable), divided by patch size and channel count.
-      for (int ey = 0; ey < eh; ++ey) {
-        const float* drow =
-            dist.data() + static_cast<std::size_t>(ey) * static_cast<std::size_t>(ew);
-        float* hrow = hsum.data() + static_cast<std::size_t>(ey) * static_cast<std::size_t>(ow);
-        for (int ox = 0; ox < ow; ++ox) {
-          float s = 0.0f;
-          for (int j = 0; j <= 2 * F; ++j) s += drow[ox + j];
-          hrow[ox] = s;
-        }
-      }
-      for (int oy = 0; oy < oh; ++oy) {
-        float* prow = dpatch.data() + static_cast<std::size_t>(oy) * static_cast<std::size_t>(ow);
-        for (int ox = 0; ox < ow; ++ox) prow[ox] = 0.0f;
-        for (int i = 0; i <= 2 * F; ++i) {
-          const float* hrow =
-              hsum.data() + static_cast<std::size_t>(oy + i) * static_cast<std::size_t>(ow);
-          for (int ox = 0; ox < ow; ++ox) prow[ox] += hrow[ox];
-        }
-        for (int ox = 0; ox < ow; ++ox) prow[ox] *= inv_patch / 3.0f;
-      }
-      // 3. Feature distance (max over features), independent of x.
-      std::fill(fdist.begin(), fdist.end(), 0.0f);
-      if (has_alb || has_nrm || has_dep) {
-        for (int oy = 0; oy < oh; ++oy) {
-          const std::size_t base = static_cast<std::size_t>(oy + P) * static_cast<std::size_t>(pw) +
-                                   static_cast<std::size_t>(P);
-          float* frow = fdist.data() + static_cast<std::size_t>(oy) * static_cast<std::size_t>(ow);
-          auto vec_feature = [&](const Padded& f, const Padded& fv) {
-            for (int ox = 0; ox < ow; ++ox) {
-              float d = 0.0f, vs = 0.0f;
-              for (int c = 0; c < 3; ++c) {
-                const float* fp = f.plane(c) + base;
-                const float* vp = fv.plane(c) + base;
-                const float diff = fp[ox] - fp[ox + doff];
-                const float vmin = vp[ox] < vp[ox + doff] ? vp[ox] : vp[ox + doff];
-                d += diff * diff - (vp[ox] + vmin);
-                vs += vp[ox] + vp[ox + doff];
-              }
-              d = d / std::max(tau, vs) * inv_kf2;
-              frow[ox] = std::max(frow[ox], d);
-            }
-          };
-          if (has_alb) vec_feature(alb, alb_v);
-          if (has_nrm) vec_feature(nrm, nrm_v);
-          if (has_dep) {
-            const float* zp = dep.plane(0) + base;
-            for (int ox = 0; ox < ow; ++ox) {
-              const float z0 = zp[ox], z1 = zp[ox + doff];
-              const float scale =
-                  params_.depth_scale * (std::abs(z0) + std::abs(z1)) * 0.5f + 1e-6f;
-              const float rel = (z0 - z1) / scale;
-              frow[ox] = std::max(frow[ox], rel * rel * inv_kf2);
-            }
-          }
-        }
-      }
-      // 4. Weights, accumulation, and the weight derivative w.r.t. the centre pixel.
-      for (int ox = 0; ox < ow; ++ox) {
-        const int gx = out.x0 + ox;
-        same_x[static_cast<std::size_t>(ox)] = std::clamp(gx + dx, 0, in.width - 1) == gx;
-      }
-      const bool second = std::abs(dx) <= F && std::abs(dy) <= F;
-      for (int oy = 0; oy < oh; ++oy) {
-        const int gy = out.y0 + oy;
-        const bool same_y = std::clamp(gy + dy, 0, in.height - 1) == gy;
-        const std::size_t prow = static_cast<std::size_t>(oy + P) * static_cast<std::size_t>(pw) +
-                                 static_cast<std::size_t>(P);
-        const std::size_t orow = static_cast<std::size_t>(oy) * static_cast<std::size_t>(ow);
-        const float* dp = dpatch.data() + orow;
-        const float* fd = fdist.data() + orow;
-        float* ws = wsum.data() + orow;
-        float* sf = self.data() + orow;
-        for (int ox = 0; ox < ow; ++ox) {
-          const float dc = dp[ox] > 0.0f ? dp[ox] : 0.0f;
-          const float fdv = fd[ox] > 0.0f ? fd[ox] : 0.0f;
-          const float w = detail::exp_neg(-(dc + fdv));
-          ws[ox] += w;
-          sf[ox] += (same_y && same_x[static_cast<std::size_t>(ox)]) ? w : 0.0f;
-        }
-        for (int c = 0; c < 3; ++c) {
-          const float* xp = Xc[c] + prow;
-          const float* vp = Vc[c] + prow;
-          float* nu = num.data() + static_cast<std::size_t>(c) * n_out + orow;
-          float* a = A.data() + static_cast<std::size_t>(c) * n_out + orow;
-          float* b = B.data() + static_cast<std::size_t>(c) * n_out + orow;
-          for (int ox = 0; ox < ow; ++ox) {
-            const float dc = dp[ox] > 0.0f ? dp[ox] : 0.0f;
-            const float fdv = fd[ox] > 0.0f ? fd[ox] : 0.0f;
-            const float w = detail::exp_neg(-(dc + fdv));
-            const float xq = xp[ox + doff];
-            nu[ox] += w * xq;
-            if (derivative) {
-              // dD/dx_p: p as the first pixel of the o = 0 pair, and as the second pixel of the
-              // o = -delta pair when that offset lies in the patch.
-              float g = 2.0f * (xp[ox] - xq) / (eps + k2 * (vp[ox] + vp[ox + doff]));
-              if (second) {
-                const float xa = xp[ox - doff];
-                g += 2.0f * (xp[ox] - xa) / (eps + k2 * (vp[ox - doff] + vp[ox]));
-              }
-              const float dw = dp[ox] > 0.0f ? -w * g * dscale : 0.0f;
-              a[ox] += dw * xq;
-              b[ox] += dw;
-            }
-          }
-        }
-      }
+      if (features) feature_distance(k, static_cast<std::ptrdiff_t>(dy) * k.pw + dx);
+      accumulate_offset(k, dx, dy, features);
     }
   }
 
@@ -242,7 +326,7 @@ void NlMeansDenoiser::denoise(const DenoiseInputs& in, const Rect& out, Buffer& 
         const std::size_t ci = static_cast<std::size_t>(c) * n_out + i;
         const float yv = num[ci] / W;
         y_out.at(out.x0 + ox, out.y0 + oy, c) = yv;
-        if (derivative) {
+        if (k.derivative) {
           dydx_out->at(out.x0 + ox, out.y0 + oy, c) = self[i] / W + (A[ci] - yv * B[ci]) / W;
         }
       }
