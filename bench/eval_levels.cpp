@@ -81,6 +81,12 @@ int main(int argc, char** argv) {
   app.add_flag("--no-features", no_features, "Colour only");
   app.add_option("--threads", threads, "Threads (0 = all)");
   app.add_option("--mixer-radius", po.mixer.radius);
+  std::string weight = "variance";
+  app.add_option("--mixer-weight", weight)
+      ->check(CLI::IsMember({"uniform", "variance", "relative"}));
+  std::string den = "nlmeans";
+  app.add_option("--denoiser", den)->check(CLI::IsMember({"nlmeans", "gaussian"}));
+  app.add_option("--sigma", po.gaussian_sigma);
   app.add_option("--rule", rule)->check(CLI::IsMember({"stein", "inverse-error"}));
   app.add_option("--divergence", divergence)->check(CLI::IsMember({"auto", "analytic", "mc"}));
   app.add_option("--search-radius", po.nlmeans.search_radius);
@@ -93,6 +99,10 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   po.t_test = !no_ttest;
   po.features = !no_features;
+  po.mixer.weight = weight == "uniform"    ? WindowWeight::uniform
+                    : weight == "relative" ? WindowWeight::relative
+                                           : WindowWeight::variance;
+  po.denoiser = den == "gaussian" ? BuiltinDenoiser::gaussian : BuiltinDenoiser::nlmeans;
   po.mixer.rule = rule == "stein" ? ClosedFormRule::stein : ClosedFormRule::inverse_error;
   po.divergence = divergence == "analytic" ? DivergenceMethod::analytic
                   : divergence == "mc"     ? DivergenceMethod::monte_carlo

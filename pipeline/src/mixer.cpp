@@ -48,9 +48,12 @@ void ClosedFormMixer::mix(const MixInputs& in, const Rect& out, Buffer& alpha) c
   const Rect wrect = out.expanded(r).intersect(image);
   const Rect vrect = wrect.expanded(1).intersect(image);
   Buffer var(vrect, 1), terms(wrect, 4), sums(out, 4), vsum(wrect, 1);
+  const bool relative = params_.weight == WindowWeight::relative;
   for (int c = 0; c < 3; ++c) {
     for (int y = vrect.y0; y < vrect.y1; ++y) {
-      for (int x = vrect.x0; x < vrect.x1; ++x) var.at(x, y, 0) = in.variance.at(x, y, c);
+      for (int x = vrect.x0; x < vrect.x1; ++x) {
+        var.at(x, y, 0) = relative ? in.x.at(x, y, c) : in.variance.at(x, y, c);
+      }
     }
     // Weights 1 / (3x3 mean of var): smoothing gives the weight many more degrees of freedom
     // than the pixel's own estimate, whose noise would otherwise bias alpha low
@@ -62,7 +65,10 @@ void ClosedFormMixer::mix(const MixInputs& in, const Rect& out, Buffer& alpha) c
       const int ny = std::min(y + 2, image.y1) - std::max(y - 1, image.y0);
       for (int x = wrect.x0; x < wrect.x1; ++x) {
         const int nx = std::min(x + 2, image.x1) - std::max(x - 1, image.x0);
-        const double w = 1.0 / (static_cast<double>(vsum.at(x, y, 0)) / (nx * ny) + kTinyVariance);
+        const double m = static_cast<double>(vsum.at(x, y, 0)) / (nx * ny);
+        const double w = params_.weight == WindowWeight::uniform ? 1.0
+                         : relative                              ? 1.0 / (m * m + 0.01)
+                                                                 : 1.0 / (m + kTinyVariance);
         const double v = in.variance.at(x, y, c);
         const double d = static_cast<double>(in.y.at(x, y, c)) - in.x.at(x, y, c);
         terms.at(x, y, 0) = static_cast<float>(w * v);

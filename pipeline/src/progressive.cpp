@@ -50,8 +50,12 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
 
   NlMeansParams nlp = options.nlmeans;
   nlp.use_features = nlp.use_features && options.features;
-  const NlMeansDenoiser builtin(nlp);
+  const NlMeansDenoiser nlmeans(nlp);
+  const GaussianDenoiser gaussian(options.gaussian_sigma);
   const ClosedFormMixer closed(options.mixer);
+  const Denoiser& builtin = options.denoiser == BuiltinDenoiser::gaussian
+                                ? static_cast<const Denoiser&>(gaussian)
+                                : static_cast<const Denoiser&>(nlmeans);
   const Denoiser& denoiser = denoiser_in ? *denoiser_in : builtin;
   const Mixer& mixer = mixer_in ? *mixer_in : closed;
 
@@ -95,7 +99,10 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
     din.normal_variance = view_of(frame.normal_variance);
     din.depth_variance = view_of(frame.depth_variance);
   }
-  res.inputs = {din.albedo.valid(), din.normal.valid(), din.depth.valid(), false};
+  // Only a denoiser that reads features makes them inputs of this run.
+  const bool reads_features = &denoiser == &nlmeans;
+  res.inputs = {reads_features && din.albedo.valid(), reads_features && din.normal.valid(),
+                reads_features && din.depth.valid(), false};
 
   const Rect image{0, 0, W, H};
   const int T = options.tile;

@@ -34,7 +34,11 @@ FrameAccumulator frame_of(int w, int h, int passes, const Fill& fill) {
 }
 
 float noise(int pass, int x, int y, int c) {
-  std::mt19937 rng(static_cast<unsigned>(((pass * 7919 + x) * 104729 + y) * 3 + c));
+  const unsigned key = ((static_cast<unsigned>(pass) * 7919u + static_cast<unsigned>(x)) * 104729u +
+                        static_cast<unsigned>(y)) *
+                           3u +
+                       static_cast<unsigned>(c);
+  std::mt19937 rng(key);
   return std::normal_distribution<float>(0.0f, 1.0f)(rng);
 }
 

@@ -32,9 +32,17 @@ enum class ClosedFormRule {
   inverse_error,
 };
 
+// How the window sums weight their pixels.
+enum class WindowWeight {
+  uniform,   // plain sums
+  variance,  // 1 / (3x3 mean of var): the window's variance-normalised error
+  relative,  // 1 / ((3x3 mean of x)^2 + 0.01): the window's relMSE
+};
+
 struct ClosedFormParams {
   ClosedFormRule rule = ClosedFormRule::stein;
-  int radius = 3;  // box window (2r+1)^2 that smooths the noisy per-pixel estimates
+  WindowWeight weight = WindowWeight::variance;
+  int radius = 6;  // box window (2r+1)^2 that smooths the noisy per-pixel estimates
 };
 
 class ClosedFormMixer final : public Mixer {

@@ -9,6 +9,7 @@
 
 #include "proden/accumulator.hpp"
 #include "proden/denoise/denoiser.hpp"
+#include "proden/denoise/gaussian.hpp"
 #include "proden/denoise/nlmeans.hpp"
 #include "proden/mixer.hpp"
 #include "proden/sure.hpp"
@@ -22,9 +23,13 @@ enum class DivergenceMethod {
   monte_carlo,
 };
 
+enum class BuiltinDenoiser { nlmeans, gaussian };
+
 struct PipelineOptions {
-  NlMeansParams nlmeans;  // the built-in denoiser (used when no denoiser is passed)
-  bool features = true;   // let the denoiser use albedo/normal/depth when present
+  BuiltinDenoiser denoiser = BuiltinDenoiser::nlmeans;  // used when no denoiser is passed
+  NlMeansParams nlmeans;
+  float gaussian_sigma = 2.0f;
+  bool features = true;  // let the denoiser use albedo/normal/depth when present
   DivergenceMethod divergence = DivergenceMethod::automatic;
   MonteCarloProbes probes;
   ClosedFormParams mixer;  // used when no mixer is passed
