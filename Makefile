@@ -2,8 +2,9 @@
 # (dependencies via tools/install-deps.sh, configure, build).
 #   make build   install deps if missing, Release build into build/ (CLI at build/proden)
 #   make test    build, run the whole CTest suite, then the unit tests again under ASan+UBSan
-#   make run     build and run proden on the bundled samples
-.PHONY: build test run deps asan test-asan format clean
+#   make run     build and start the daemon (`proden serve`) with a demo job fed by the samples
+#   make run-cli build and run the CLI on the bundled samples
+.PHONY: build test run run-cli deps asan test-asan format clean
 
 BUILD_DIR ?= build
 ASAN_DIR  ?= build-asan
@@ -32,6 +33,9 @@ test-asan: asan
 	  UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 ctest --output-on-failure -L unit -j $(JOBS)
 
 run: build
+	OUT_DIR=$(OUT_DIR) tools/run-daemon.sh
+
+run-cli: build
 	@mkdir -p $(OUT_DIR)
 	$(BUILD_DIR)/proden info samples/renders/cornell/pass_00.exr samples/renders/povray/pass_00.exr
 	$(BUILD_DIR)/proden denoise --aov --out $(OUT_DIR)/cornell.exr samples/renders/cornell/pass_*.exr

@@ -9,6 +9,7 @@ packages=(
   libopenexr-dev libimath-dev
   libboost-dev libboost-system-dev
   nlohmann-json3-dev libspdlog-dev libfmt-dev catch2 libcli11-dev libtbb-dev
+  python3 curl                                              # service tests, make run
   "$@"
 )
 

@@ -8,6 +8,7 @@
 #include <memory>
 
 #include "cli/commands.hpp"
+#include "daemon/serve.hpp"
 
 namespace {
 
@@ -50,7 +51,11 @@ int main(int argc, char** argv) {
   d->add_flag("--json", den.json, "Print a JSON summary of the frame on stdout");
   d->add_flag("-q,--quiet", quiet, "No progress display");
   d->add_option("passes", den.passes, "Pass files of one frame")->required();
-  std::string divergence = "auto", mixer = "closed-form", rule = "stein";
+  std::string divergence = "auto", mixer = "closed-form", rule = "stein", denoiser = "nlmeans";
+  d->add_option("--denoiser", denoiser,
+                "nlmeans (feature-guided, default) or gaussian (fast, biased reference)")
+      ->check(CLI::IsMember({"nlmeans", "gaussian"}))
+      ->capture_default_str();
   d->add_option("--divergence", divergence,
                 "SURE divergence: auto (analytic when the denoiser offers it), analytic, mc")
       ->check(CLI::IsMember({"auto", "analytic", "mc"}))
@@ -100,6 +105,7 @@ int main(int argc, char** argv) {
   i->add_option("files", inf.files, "Pass files")->required();
   i->add_flag("--json", inf.json, "JSON output");
 
+  proden::daemon::add_serve_command(app);  // `proden serve`: runs the daemon and exits
 
   try {
     app.parse(argc, argv);
@@ -112,6 +118,8 @@ int main(int argc, char** argv) {
   den.input.renderer = ev.input.renderer = inf.input.renderer = r;
   den.progress = !quiet;
   den.pipeline.features = den.input.features;
+  den.pipeline.denoiser =
+      denoiser == "gaussian" ? BuiltinDenoiser::gaussian : BuiltinDenoiser::nlmeans;
   den.pipeline.divergence = divergence == "analytic" ? DivergenceMethod::analytic
                             : divergence == "mc"     ? DivergenceMethod::monte_carlo
                                                      : DivergenceMethod::automatic;

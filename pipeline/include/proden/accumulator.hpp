@@ -17,6 +17,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -99,6 +100,12 @@ class FrameAccumulator {
 
   // Digest of the whole state (statistics and history): equal digests <=> unchanged state.
   std::uint64_t state_digest() const;
+
+  // Binary form of the whole state (statistics and history), for persistence across restarts:
+  // versioned magic header, host byte order (little-endian), trailing checksum. deserialize()
+  // throws InputError (unreadable) on a corrupt, truncated or inconsistent blob.
+  std::vector<std::uint8_t> serialize() const;
+  static FrameAccumulator deserialize(std::span<const std::uint8_t> blob);
 
  private:
   struct Moments {  // weighted Welford accumulators, planar [c * pixels + p]

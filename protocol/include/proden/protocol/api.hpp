@@ -1,0 +1,102 @@
+// The HTTP API contract of `proden serve` (docs/api.md): request and response bodies as C++ types
+// with their JSON forms. Field names are part of the contract: extend, never rename.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+namespace proden::protocol {
+
+// An API failure: HTTP status, machine-readable code, human message -> {"error":{...}}.
+class ApiError : public std::runtime_error {
+ public:
+  ApiError(int status, std::string code, const std::string& message)
+      : std::runtime_error(message), status_(status), code_(std::move(code)) {}
+  int status() const { return status_; }
+  const std::string& code() const { return code_; }
+  nlohmann::json to_json() const;
+
+ private:
+  int status_;
+  std::string code_;
+};
+
+struct WatchSpec {
+  std::string dir;      // absolute directory (canonicalised by the daemon)
+  std::string pattern;  // relative path with {frame} (or ####) and {pass}
+};
+
+struct OutputSpec {
+  std::string dir;
+  bool png = false;  // also write a tone-mapped PNG preview (EXR is always written)
+};
+
+struct PipelineSpec {
+  std::string denoiser = "auto";
+  std::string mixer = "auto";
+};
+
+// A job as created by POST /api/v1/jobs and reported by GET /api/v1/jobs[/{id}].
+struct JobSpec {
+  std::string id;
+  std::string name;
+  std::optional<WatchSpec> watch;  // none: passes arrive only by upload
+  std::string renderer = "auto";   // auto | cycles | povray | generic
+  std::optional<double> spp;       // samples per pass when the files do not say
+  PipelineSpec pipeline;
+  OutputSpec output;
+  bool paused = false;
+  std::string created;  // RFC 3339 UTC
+};
+
+// Validates and parses a job creation body (throws ApiError 400 naming the bad field). Paths are
+// returned as given; the daemon resolves them against its allowed roots.
+JobSpec parse_job_spec(const nlohmann::json& body);
+nlohmann::json to_json(const JobSpec& job);
+JobSpec job_from_json(const nlohmann::json& j);  // the daemon's own persisted form
+
+// One accepted pass of a frame, as persisted and reported.
+struct PassIdentity {
+  std::string pass;    // the {pass} value
+  std::string source;  // path it was read from (watched file or stored upload)
+  std::uint64_t size = 0;
+  std::int64_t mtime_ns = 0;
+  std::uint64_t content_hash = 0;  // hash of the file's bytes
+};
+nlohmann::json to_json(const PassIdentity& p);
+PassIdentity pass_identity_from_json(const nlohmann::json& j);
+
+// What GET .../frames lists and GET .../frames/{frame} details.
+struct FrameStatus {
+  std::string job;
+  long frame = 0;
+  int passes = 0;
+  double spp = 0.0;
+  std::uint64_t version = 0;  // increases with each published update
+  std::string updated;        // RFC 3339 UTC of the last published version
+  // The pipeline's own error estimate of the published result, mean over pixels and channels:
+  // (1-alpha)^2 Var[x] + alpha^2 SURE(y) ("source":"variance+sure"), or Var[x] alone when the
+  // job's denoiser is "none" ("source":"variance").
+  double estimated_mse = 0.0;
+  std::string estimated_mse_source = "variance";
+  int width = 0, height = 0;
+  std::string inputs;           // layout, e.g. "HDR+ALB+NRM"
+  std::string variance_source;  // between_passes | renderer | spatial
+  bool low_confidence = false;
+  std::string state_digest;  // hex digest of the accumulated state
+  std::vector<PassIdentity> pass_list;
+  std::vector<nlohmann::json> quarantined;
+  std::vector<std::string> outputs;  // published file paths
+  bool pending = false;              // passes waiting to be processed
+};
+nlohmann::json to_json(const FrameStatus& f, bool detail);
+
+// RFC 3339 UTC timestamp with milliseconds for `now`.
+std::string now_rfc3339();
+
+}  // namespace proden::protocol

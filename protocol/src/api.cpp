@@ -1,0 +1,194 @@
+#include "proden/protocol/api.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <ctime>
+#include <regex>
+
+namespace proden::protocol {
+
+using nlohmann::json;
+
+namespace {
+
+[[noreturn]] void bad(const std::string& field, const std::string& why) {
+  throw ApiError(400, "invalid_field", field + ": " + why);
+}
+
+std::string get_string(const json& obj, const char* key, const std::string& field, bool required,
+                       const std::string& fallback = {}) {
+  if (!obj.contains(key) || obj[key].is_null()) {
+    if (required) bad(field, "required");
+    return fallback;
+  }
+  if (!obj[key].is_string()) bad(field, "must be a string");
+  return obj[key].get<std::string>();
+}
+
+void check_pattern(const std::string& p) {
+  if (p.empty() || p.size() > 512) bad("watch.pattern", "must be 1-512 characters");
+  if (p.front() == '/') bad("watch.pattern", "must be relative to watch.dir");
+  if (p.find("{pass}") == std::string::npos) bad("watch.pattern", "needs a {pass} placeholder");
+  if (p.find("{frame}") == std::string::npos && p.find('#') == std::string::npos) {
+    bad("watch.pattern", "needs a {frame} placeholder (or Blender's #### padding)");
+  }
+  std::size_t start = 0;
+  while (start <= p.size()) {
+    const auto end = std::min(p.find('/', start), p.size());
+    const std::string part = p.substr(start, end - start);
+    if (part.empty() || part == "." || part == "..") {
+      bad("watch.pattern", "empty, '.' or '..' path components are not allowed");
+    }
+    start = end + 1;
+  }
+  if (p.find('\0') != std::string::npos) bad("watch.pattern", "contains NUL");
+}
+
+}  // namespace
+
+json ApiError::to_json() const {
+  return {{"error", {{"code", code_}, {"message", what()}}}};
+}
+
+JobSpec parse_job_spec(const json& body) {
+  if (!body.is_object()) throw ApiError(400, "invalid_body", "job body must be a JSON object");
+  JobSpec j;
+  j.name = get_string(body, "name", "name", true);
+  static const std::regex name_re("[A-Za-z0-9._-]{1,64}");
+  if (!std::regex_match(j.name, name_re) || j.name == "." || j.name == "..") {
+    bad("name", "1-64 characters of A-Z a-z 0-9 . _ -");
+  }
+  if (body.contains("watch") && !body["watch"].is_null()) {
+    const json& w = body["watch"];
+    if (!w.is_object()) bad("watch", "must be an object");
+    WatchSpec ws;
+    ws.dir = get_string(w, "dir", "watch.dir", true);
+    ws.pattern = get_string(w, "pattern", "watch.pattern", true);
+    check_pattern(ws.pattern);
+    j.watch = ws;
+  }
+  j.renderer = get_string(body, "renderer", "renderer", false, "auto");
+  if (j.renderer != "auto" && j.renderer != "cycles" && j.renderer != "povray" &&
+      j.renderer != "generic") {
+    bad("renderer", "one of auto, cycles, povray, generic");
+  }
+  if (body.contains("spp") && !body["spp"].is_null()) {
+    if (!body["spp"].is_number() || !std::isfinite(body["spp"].get<double>()) ||
+        body["spp"].get<double>() <= 0) {
+      bad("spp", "must be a positive number");
+    }
+    j.spp = body["spp"].get<double>();
+  }
+  if (body.contains("pipeline") && !body["pipeline"].is_null()) {
+    const json& p = body["pipeline"];
+    if (!p.is_object()) bad("pipeline", "must be an object");
+    j.pipeline.denoiser = get_string(p, "denoiser", "pipeline.denoiser", false, "auto");
+    j.pipeline.mixer = get_string(p, "mixer", "pipeline.mixer", false, "auto");
+    static const std::regex opt_re("[a-z0-9_-]{1,32}");
+    if (!std::regex_match(j.pipeline.denoiser, opt_re)) bad("pipeline.denoiser", "bad value");
+    if (!std::regex_match(j.pipeline.mixer, opt_re)) bad("pipeline.mixer", "bad value");
+  }
+  if (!body.contains("output") || !body["output"].is_object()) bad("output", "required object");
+  const json& o = body["output"];
+  j.output.dir = get_string(o, "dir", "output.dir", true);
+  if (o.contains("formats") && !o["formats"].is_null()) {
+    if (!o["formats"].is_array()) bad("output.formats", "must be an array of \"exr\", \"png\"");
+    for (const auto& f : o["formats"]) {
+      if (f == "png") {
+        j.output.png = true;
+      } else if (f != "exr") {
+        bad("output.formats", "supported formats are \"exr\" (always written) and \"png\"");
+      }
+    }
+  }
+  if (o.contains("png")) {
+    if (!o["png"].is_boolean()) bad("output.png", "must be a boolean");
+    j.output.png = j.output.png || o["png"].get<bool>();
+  }
+  if (body.contains("paused")) {
+    if (!body["paused"].is_boolean()) bad("paused", "must be a boolean");
+    j.paused = body["paused"].get<bool>();
+  }
+  return j;
+}
+
+json to_json(const JobSpec& j) {
+  json out = {{"id", j.id},
+              {"name", j.name},
+              {"renderer", j.renderer},
+              {"pipeline", {{"denoiser", j.pipeline.denoiser}, {"mixer", j.pipeline.mixer}}},
+              {"output",
+               {{"dir", j.output.dir},
+                {"formats", j.output.png ? json::array({"exr", "png"}) : json::array({"exr"})}}},
+              {"paused", j.paused},
+              {"state", j.paused ? "paused" : "active"},
+              {"created", j.created}};
+  out["watch"] = j.watch ? json{{"dir", j.watch->dir}, {"pattern", j.watch->pattern}} : json();
+  out["spp"] = j.spp ? json(*j.spp) : json();
+  return out;
+}
+
+JobSpec job_from_json(const json& j) {
+  JobSpec s = parse_job_spec(j);
+  s.id = j.at("id").get<std::string>();
+  s.created = j.value("created", "");
+  return s;
+}
+
+json to_json(const PassIdentity& p) {
+  return {{"pass", p.pass},
+          {"source", p.source},
+          {"size", p.size},
+          {"mtime_ns", p.mtime_ns},
+          {"content_hash", p.content_hash}};
+}
+
+PassIdentity pass_identity_from_json(const json& j) {
+  PassIdentity p;
+  p.pass = j.at("pass").get<std::string>();
+  p.source = j.at("source").get<std::string>();
+  p.size = j.at("size").get<std::uint64_t>();
+  p.mtime_ns = j.at("mtime_ns").get<std::int64_t>();
+  p.content_hash = j.at("content_hash").get<std::uint64_t>();
+  return p;
+}
+
+json to_json(const FrameStatus& f, bool detail) {
+  json j = {{"job", f.job},
+            {"frame", f.frame},
+            {"passes", f.passes},
+            {"spp", f.spp},
+            {"version", f.version},
+            {"updated", f.updated.empty() ? json() : json(f.updated)},
+            {"estimated_mse", f.estimated_mse},
+            {"estimated_error", {{"mse", f.estimated_mse}, {"source", f.estimated_mse_source}}},
+            {"pending", f.pending}};
+  if (!detail) return j;
+  j["width"] = f.width;
+  j["height"] = f.height;
+  j["inputs"] = f.inputs;
+  j["variance_source"] = f.variance_source;
+  j["low_confidence"] = f.low_confidence;
+  j["state_digest"] = f.state_digest;
+  json passes = json::array();
+  for (const auto& p : f.pass_list) passes.push_back(to_json(p));
+  j["pass_list"] = passes;
+  j["quarantined"] = f.quarantined;
+  j["outputs"] = f.outputs;
+  return j;
+}
+
+std::string now_rfc3339() {
+  const auto now = std::chrono::system_clock::now();
+  const std::time_t t = std::chrono::system_clock::to_time_t(now);
+  const auto ms =
+      std::chrono::duration_cast<std::chrono::milliseconds>(now.time_since_epoch()).count() % 1000;
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[96];
+  std::snprintf(buf, sizeof buf, "%04d-%02d-%02dT%02d:%02d:%02d.%03dZ", tm.tm_year + 1900,
+                tm.tm_mon + 1, tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, static_cast<int>(ms));
+  return buf;
+}
+
+}  // namespace proden::protocol

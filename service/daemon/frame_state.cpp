@@ -1,0 +1,140 @@
+#include "daemon/frame_state.hpp"
+
+#include <cstring>
+#include <fstream>
+#include <stdexcept>
+
+#include "daemon/files.hpp"
+#include "proden/hash.hpp"
+
+namespace proden::daemon {
+
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '1'};
+
+std::uint64_t text_hash(const std::string& s) {
+  return hash_bytes({reinterpret_cast<const unsigned char*>(s.data()), s.size()}, 0x66726d);
+}
+
+}  // namespace
+
+json to_json(const FrameRecord& r) {
+  json ingested = json::array();
+  for (const auto& p : r.ingested) ingested.push_back(protocol::to_json(p));
+  return {{"frame", r.frame},
+          {"version", r.version},
+          {"updated", r.updated},
+          {"estimated_mse", r.estimated_mse},
+          {"estimated_mse_source", r.estimated_mse_source},
+          {"passes", r.passes},
+          {"spp", r.spp},
+          {"width", r.width},
+          {"height", r.height},
+          {"inputs", r.inputs},
+          {"variance_source", r.variance_source},
+          {"low_confidence", r.low_confidence},
+          {"digest", r.digest},
+          {"ingested", ingested}};
+}
+
+FrameRecord frame_record_from_json(const json& j) {
+  FrameRecord r;
+  r.frame = j.at("frame").get<long>();
+  r.version = j.at("version").get<std::uint64_t>();
+  r.updated = j.at("updated").get<std::string>();
+  r.estimated_mse = j.at("estimated_mse").get<double>();
+  r.estimated_mse_source = j.at("estimated_mse_source").get<std::string>();
+  r.passes = j.at("passes").get<int>();
+  r.spp = j.at("spp").get<double>();
+  r.width = j.at("width").get<int>();
+  r.height = j.at("height").get<int>();
+  r.inputs = j.at("inputs").get<std::string>();
+  r.variance_source = j.at("variance_source").get<std::string>();
+  r.low_confidence = j.at("low_confidence").get<bool>();
+  r.digest = j.at("digest").get<std::uint64_t>();
+  for (const auto& p : j.at("ingested")) r.ingested.push_back(protocol::pass_identity_from_json(p));
+  return r;
+}
+
+void save_frame_state(const fs::path& path, const FrameRecord& record,
+                      const FrameAccumulator& frame) {
+  const std::string text = to_json(record).dump();
+  const std::vector<std::uint8_t> blob = frame.serialize();
+  std::vector<std::uint8_t> out;
+  out.reserve(sizeof(kMagic) + 16 + text.size() + blob.size());
+  auto put64 = [&out](std::uint64_t v) {
+    const auto* p = reinterpret_cast<const std::uint8_t*>(&v);
+    out.insert(out.end(), p, p + sizeof v);
+  };
+  out.insert(out.end(), kMagic, kMagic + sizeof kMagic);
+  put64(text.size());
+  out.insert(out.end(), text.begin(), text.end());
+  put64(text_hash(text));
+  out.insert(out.end(), blob.begin(), blob.end());
+  write_file_atomic(path, out);
+}
+
+namespace {
+
+FrameRecord parse_record(std::span<const std::uint8_t> b, const fs::path& path,
+                         std::size_t* blob_offset) {
+  std::uint64_t n = 0;
+  if (b.size() < sizeof kMagic + 8 || std::memcmp(b.data(), kMagic, sizeof kMagic) != 0) {
+    throw std::runtime_error(path.string() + ": not a proden frame state");
+  }
+  std::memcpy(&n, b.data() + sizeof kMagic, sizeof n);
+  if (n > b.size() - sizeof kMagic - 8 || b.size() - sizeof kMagic - 8 - n < 8) {
+    throw std::runtime_error(path.string() + ": truncated frame state");
+  }
+  std::string text(reinterpret_cast<const char*>(b.data() + sizeof kMagic + 8), n);
+  std::uint64_t h = 0;
+  std::memcpy(&h, b.data() + sizeof kMagic + 8 + n, sizeof h);
+  if (h != text_hash(text))
+    throw std::runtime_error(path.string() + ": corrupt frame state record");
+  if (blob_offset) *blob_offset = sizeof kMagic + 16 + n;
+  try {
+    return frame_record_from_json(json::parse(text));
+  } catch (const json::exception& e) {
+    throw std::runtime_error(path.string() + ": bad frame state record: " + e.what());
+  }
+}
+
+}  // namespace
+
+FrameRecord load_frame_record(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path.string() + ": cannot open");
+  std::vector<std::uint8_t> head(sizeof kMagic + 8);
+  if (!in.read(reinterpret_cast<char*>(head.data()), static_cast<std::streamsize>(head.size()))) {
+    throw std::runtime_error(path.string() + ": truncated frame state");
+  }
+  std::uint64_t n = 0;
+  std::memcpy(&n, head.data() + sizeof kMagic, sizeof n);
+  if (n > (64u << 20)) throw std::runtime_error(path.string() + ": not a proden frame state");
+  head.resize(head.size() + n + 8);
+  if (!in.read(reinterpret_cast<char*>(head.data() + sizeof kMagic + 8),
+               static_cast<std::streamsize>(n + 8))) {
+    throw std::runtime_error(path.string() + ": truncated frame state");
+  }
+  return parse_record(head, path, nullptr);
+}
+
+FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* record) {
+  auto bytes = read_file(path);
+  if (!bytes) throw std::runtime_error(path.string() + ": cannot read");
+  std::size_t offset = 0;
+  FrameRecord r = parse_record(*bytes, path, &offset);
+  FrameAccumulator acc =
+      FrameAccumulator::deserialize(std::span<const std::uint8_t>(*bytes).subspan(offset));
+  if (acc.state_digest() != r.digest) {
+    throw std::runtime_error(path.string() + ": accumulator does not match its record");
+  }
+  if (record) *record = std::move(r);
+  return acc;
+}
+
+}  // namespace proden::daemon

@@ -1,0 +1,46 @@
+// Persistence of one frame: its accumulated statistics and the identities of the passes they
+// contain, in ONE file written atomically (temp + fsync + rename), so that after a crash a pass
+// is either in both or in neither: counted exactly once.
+//
+// File: "PRDNFRS1", u64 n, n bytes of JSON record, u64 hash(JSON), then the accumulator blob
+// (FrameAccumulator::serialize, self-checksummed). The JSON part can be read without the blob.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "proden/accumulator.hpp"
+#include "proden/protocol/api.hpp"
+
+namespace proden::daemon {
+
+struct FrameRecord {
+  long frame = 0;
+  std::uint64_t version = 0;
+  std::string updated;
+  double estimated_mse = 0.0;
+  std::string estimated_mse_source = "variance";
+  int passes = 0;
+  double spp = 0.0;
+  int width = 0, height = 0;
+  std::string inputs, variance_source;
+  bool low_confidence = false;
+  std::uint64_t digest = 0;
+  std::vector<protocol::PassIdentity> ingested;
+};
+
+nlohmann::json to_json(const FrameRecord& r);
+FrameRecord frame_record_from_json(const nlohmann::json& j);
+
+void save_frame_state(const std::filesystem::path& path, const FrameRecord& record,
+                      const FrameAccumulator& frame);
+// Reads only the JSON record (fast). Throws std::runtime_error on a corrupt file.
+FrameRecord load_frame_record(const std::filesystem::path& path);
+// Reads the record and the accumulator. Throws on a corrupt file.
+FrameAccumulator load_frame_accumulator(const std::filesystem::path& path, FrameRecord* record);
+
+}  // namespace proden::daemon

@@ -1,0 +1,145 @@
+#include "daemon/processor.hpp"
+
+#include <OpenImageIO/imageio.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+#include "proden/io/image_writer.hpp"
+#include "proden/progressive.hpp"
+
+namespace proden::daemon {
+
+bool FrameProcessor::supports(const protocol::PipelineSpec& spec, std::string& why) {
+  if (spec.denoiser != "auto" && spec.denoiser != "nlmeans" && spec.denoiser != "none") {
+    why = "pipeline.denoiser: one of auto, nlmeans, none";
+    return false;
+  }
+  if (spec.mixer != "auto" && spec.mixer != "closed-form" && spec.mixer != "stein" &&
+      spec.mixer != "inverse-error") {
+    why = "pipeline.mixer: one of auto, closed-form (= stein), stein, inverse-error";
+    return false;
+  }
+  return true;
+}
+
+ProcessedFrame FrameProcessor::process(const FrameEstimate& estimate,
+                                       const protocol::PipelineSpec& spec) {
+  ProcessedFrame out;
+  out.layers.emplace_back("render", estimate.mean);
+  out.layers.emplace_back("variance", estimate.variance);
+  const auto var = estimate.variance.data();
+  if (spec.denoiser == "none") {  // publish the accumulated render; its own error is Var[x]
+    out.result = estimate.mean;
+    double sum = 0.0;
+    for (float x : var) sum += static_cast<double>(x);
+    out.estimated_mse = var.empty() ? 0.0 : sum / static_cast<double>(var.size());
+    out.estimated_mse_source = "variance";
+    return out;
+  }
+  PipelineOptions options;
+  if (spec.mixer == "inverse-error") options.mixer.rule = ClosedFormRule::inverse_error;
+  PipelineResult r = run_pipeline(estimate, options);
+  // Error of z = x + a (y - x) per pixel, from the pipeline's own estimates:
+  // (1 - a)^2 Var[x] + a^2 SURE(y), ignoring the covariance of x and y.
+  const auto a = r.alpha.data();
+  const auto sure = r.sure.data();
+  double sum = 0.0;
+  for (std::size_t i = 0; i < var.size() && i < a.size() && i < sure.size(); ++i) {
+    const double al = a[i];
+    sum += (1.0 - al) * (1.0 - al) * var[i] + al * al * std::max(0.0f, sure[i]);
+  }
+  out.estimated_mse = var.empty() ? 0.0 : sum / static_cast<double>(var.size());
+  out.estimated_mse_source = "variance+sure";
+  out.stage_seconds = {{"denoise", r.timings.denoise}, {"sure", r.timings.sure},
+                       {"mix", r.timings.mixer},       {"ttest", r.timings.ttest},
+                       {"compose", r.timings.compose}, {"pipeline", r.timings.wall}};
+  out.result = std::move(r.result);
+  out.layers.emplace_back("denoised", std::move(r.denoised));
+  out.layers.emplace_back("alpha", std::move(r.alpha));
+  out.layers.emplace_back("sure", std::move(r.sure));
+  return out;
+}
+
+std::vector<std::string> FrameProcessor::publish(
+    const ProcessedFrame& frame, const std::string& base, bool png,
+    const std::vector<std::pair<std::string, std::string>>& attributes) {
+  std::vector<io::NamedChannel> channels;
+  io::add_layer(channels, "", frame.result);
+  for (const auto& [name, img] : frame.layers) {
+    io::add_layer(channels, name + ".", img, img.channels() == 1 ? "Y" : "RGB");
+  }
+  io::WriteOptions w;
+  w.attributes = attributes;
+  std::vector<std::string> written;
+  io::write_image(base + ".exr", frame.result.width(), frame.result.height(), channels, w);
+  written.push_back(base + ".exr");
+  if (png) {
+    write_png_preview(base + ".png", frame.result);
+    written.push_back(base + ".png");
+  }
+  return written;
+}
+
+bool known_layer(const std::string& layer) {
+  return layer == "result" || layer == "render" || layer == "variance" || layer == "denoised" ||
+         layer == "alpha" || layer == "sure";
+}
+
+Image read_layer(const std::string& exr_path, const std::string& layer) {
+  auto in = OIIO::ImageInput::open(exr_path);
+  if (!in) throw std::runtime_error(exr_path + ": cannot open: " + OIIO::geterror());
+  const OIIO::ImageSpec& spec = in->spec();
+  const std::string prefix = layer == "result" ? "" : layer + ".";
+  std::vector<int> idx;
+  for (const char* s : {"R", "G", "B"}) {
+    for (int c = 0; c < spec.nchannels; ++c) {
+      if (spec.channelnames[static_cast<std::size_t>(c)] == prefix + s) idx.push_back(c);
+    }
+  }
+  if (idx.size() != 3) {
+    idx.clear();
+    for (int c = 0; c < spec.nchannels; ++c) {
+      if (spec.channelnames[static_cast<std::size_t>(c)] == prefix + "Y") idx.push_back(c);
+    }
+    if (idx.size() != 1) return {};
+  }
+  const int w = spec.width, h = spec.height;
+  std::vector<float> all(static_cast<std::size_t>(w) * h * spec.nchannels);
+  if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, all.data())) {
+    throw std::runtime_error(exr_path + ": read failed: " + in->geterror());
+  }
+  Image img(w, h, 3);
+  const std::size_t n = img.pixels();
+  for (int c = 0; c < 3; ++c) {
+    const int src = idx[idx.size() == 3 ? static_cast<std::size_t>(c) : 0];
+    auto plane = img.plane(c);
+    for (std::size_t p = 0; p < n; ++p) {
+      plane[p] = all[p * static_cast<std::size_t>(spec.nchannels) + static_cast<std::size_t>(src)];
+    }
+  }
+  return img;
+}
+
+void write_png_preview(const std::string& path, const Image& rgb) {
+  Image out(rgb.width(), rgb.height(), 3);
+  for (int c = 0; c < 3; ++c) {
+    auto src = rgb.plane(std::min(c, rgb.channels() - 1));
+    auto dst = out.plane(c);
+    for (std::size_t p = 0; p < src.size(); ++p) {
+      float x = std::isfinite(src[p]) ? std::max(src[p], 0.0f) : 0.0f;
+      x = x / (1.0f + x);
+      x = x <= 0.0031308f ? 12.92f * x : 1.055f * std::pow(x, 1.0f / 2.4f) - 0.055f;
+      dst[p] = std::clamp(x, 0.0f, 1.0f);
+    }
+  }
+  std::vector<io::NamedChannel> channels;
+  io::add_layer(channels, "", out);
+  io::WriteOptions w;
+  w.compression = "";
+  io::write_image(path, out.width(), out.height(), channels, w);
+}
+
+}  // namespace proden::daemon

@@ -1,0 +1,187 @@
+#include "daemon/serve.hpp"
+
+#include <fcntl.h>
+#include <signal.h>
+#include <spdlog/spdlog.h>
+#include <sys/file.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+#include "daemon/api.hpp"
+#include "daemon/config.hpp"
+#include "daemon/engine.hpp"
+#include "daemon/events.hpp"
+#include "daemon/files.hpp"
+#include "daemon/http_server.hpp"
+#include "daemon/metrics.hpp"
+
+namespace proden::daemon {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct ServeFlags {
+  std::string config_file, bind, state_dir, token_file, log_level;
+  std::vector<std::string> roots;
+  int port = -1, workers = 0, poll_ms = 0, settle_ms = 0;
+  bool print_config = false;
+};
+
+std::string read_token(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw std::runtime_error("cannot read token file " + path);
+  std::string t((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  while (!t.empty() && std::isspace(static_cast<unsigned char>(t.back()))) t.pop_back();
+  while (!t.empty() && std::isspace(static_cast<unsigned char>(t.front()))) t.erase(0, 1);
+  if (t.size() < 16)
+    throw std::runtime_error("token in " + path + " is shorter than 16 characters");
+  struct stat st {};
+  if (::stat(path.c_str(), &st) == 0 && (st.st_mode & 0077)) {
+    spdlog::warn("token file {} is readable by group/others (chmod 600 it)", path);
+  }
+  return t;
+}
+
+int serve_main(const ServeFlags& f) {
+  Config c;
+  try {
+    if (!f.config_file.empty()) load_config_file(c, f.config_file);
+  } catch (const std::exception& e) {
+    spdlog::error("{}", e.what());
+    return 2;
+  }
+  if (!f.bind.empty()) c.bind = f.bind;
+  if (f.port >= 0) c.port = f.port;
+  if (!f.state_dir.empty()) c.state_dir = f.state_dir;
+  if (!f.roots.empty()) c.allowed_roots = f.roots;
+  if (!f.token_file.empty()) c.token_file = f.token_file;
+  if (!f.log_level.empty()) c.log_level = f.log_level;
+  if (f.workers > 0) c.worker_threads = f.workers;
+  if (f.poll_ms > 0) c.watch.poll_interval_ms = f.poll_ms;
+  if (f.settle_ms > 0) c.watch.settle_ms = f.settle_ms;
+  if (f.print_config) {
+    std::printf("%s\n", to_json(c).dump(2).c_str());
+    return 0;
+  }
+  std::string token;
+  try {
+    if (!c.token_file.empty()) token = read_token(c.token_file);
+  } catch (const std::exception& e) {
+    spdlog::error("{}", e.what());
+    return 2;
+  }
+  return run_serve(c, token);
+}
+
+}  // namespace
+
+void add_serve_command(CLI::App& app) {
+  auto flags = std::make_shared<ServeFlags>();
+  auto* s = app.add_subcommand("serve", "Run the daemon: watch, accumulate, publish, serve HTTP");
+  s->add_option("--config", flags->config_file, "JSON config file (flags override it)");
+  s->add_option("--bind", flags->bind, "Address to bind (default 127.0.0.1)");
+  s->add_option("--port", flags->port, "TCP port (0 = pick a free one)")
+      ->check(CLI::Range(0, 65535));
+  s->add_option("--state-dir", flags->state_dir, "State directory (jobs, frame state)");
+  s->add_option("--allow-root", flags->roots, "Directory watched/output paths must lie in");
+  s->add_option("--token-file", flags->token_file, "File holding the bearer token");
+  s->add_option("--workers", flags->workers, "Frames processed concurrently")
+      ->check(CLI::PositiveNumber);
+  s->add_option("--poll-interval-ms", flags->poll_ms, "Directory scan interval")
+      ->check(CLI::PositiveNumber);
+  s->add_option("--settle-ms", flags->settle_ms, "Stability time before a file is read")
+      ->check(CLI::PositiveNumber);
+  s->add_option("--log-level", flags->log_level, "trace, debug, info, warn, error");
+  s->add_flag("--print-config", flags->print_config, "Print the effective config and exit");
+  s->callback([flags] {
+    const int rc = serve_main(*flags);
+    spdlog::shutdown();
+    std::fflush(stdout);
+    std::exit(rc);
+  });
+}
+
+int run_serve(Config c, const std::string& token) {
+  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e proden[%t] %^%l%$: %v");
+  spdlog::set_level(spdlog::level::from_str(c.log_level));
+  if (c.allowed_roots.empty()) {
+    spdlog::error("no allowed roots: give --allow-root DIR (watched and output paths live there)");
+    return 2;
+  }
+  if (token.empty() && !is_loopback_address(c.bind)) {
+    spdlog::error("refusing to bind {} without a token: use --token-file, or bind loopback",
+                  c.bind);
+    return 2;
+  }
+  Roots roots;
+  try {
+    roots = Roots(c.allowed_roots);
+    fs::create_directories(c.state_dir);
+    c.state_dir = fs::canonical(c.state_dir).string();
+  } catch (const std::exception& e) {
+    spdlog::error("{}", e.what());
+    return 2;
+  }
+  // One daemon per state directory.
+  const std::string lock_path = c.state_dir + "/lock";
+  const int lock_fd = ::open(lock_path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (lock_fd < 0 || ::flock(lock_fd, LOCK_EX | LOCK_NB) != 0) {
+    spdlog::error("state directory {} is in use by another proden serve", c.state_dir);
+    return 1;
+  }
+  // Many SSE clients need descriptors.
+  rlimit rl{};
+  if (::getrlimit(RLIMIT_NOFILE, &rl) == 0 && rl.rlim_cur < rl.rlim_max) {
+    rl.rlim_cur = rl.rlim_max;
+    ::setrlimit(RLIMIT_NOFILE, &rl);
+  }
+  // Signals are taken synchronously by this thread; every other thread inherits the mask.
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGTERM);
+  sigaddset(&set, SIGINT);
+  ::pthread_sigmask(SIG_BLOCK, &set, nullptr);
+  ::signal(SIGPIPE, SIG_IGN);
+
+  Metrics metrics;
+  EventHub events(c.limits.sse_history);
+  Engine engine(c, roots, metrics, events);
+  Api api(c, engine, events, metrics, token);
+  HttpServer server(c, api, events, metrics);
+  unsigned short port = 0;
+  try {
+    engine.start();
+    port = server.listen(c.bind, static_cast<unsigned short>(c.port));
+  } catch (const std::exception& e) {
+    spdlog::error("cannot start: {}", e.what());
+    engine.stop();
+    return 1;
+  }
+  server.run(c.io_threads);
+  const std::string host = c.bind.find(':') != std::string::npos ? "[" + c.bind + "]" : c.bind;
+  std::printf("listening on http://%s:%u\n", host.c_str(), port);
+  std::fflush(stdout);
+  spdlog::info("listening on http://{}:{} (state {}, {} worker(s), token {})", host, port,
+               c.state_dir, c.worker_threads, token.empty() ? "off" : "on");
+
+  int sig = 0;
+  while (sigwait(&set, &sig) != 0) {
+  }
+  spdlog::info("signal {}: draining", sig);
+  api.set_draining();
+  engine.stop();  // finishes in-flight frames; their state is persisted as they complete
+  server.stop();
+  spdlog::info("stopped");
+  ::close(lock_fd);
+  return 0;
+}
+
+}  // namespace proden::daemon
