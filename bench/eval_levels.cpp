@@ -81,6 +81,7 @@ int main(int argc, char** argv) {
   app.add_flag("--no-features", no_features, "Colour only");
   app.add_option("--threads", threads, "Threads (0 = all)");
   app.add_option("--mixer-radius", po.mixer.radius);
+  app.add_option("--variance-floor", po.mixer.variance_floor);
   std::string weight = "variance";
   app.add_option("--mixer-weight", weight)
       ->check(CLI::IsMember({"uniform", "variance", "relative"}));

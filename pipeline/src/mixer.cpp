@@ -47,12 +47,13 @@ void ClosedFormMixer::mix(const MixInputs& in, const Rect& out, Buffer& alpha) c
   const Rect image{0, 0, in.width, in.height};
   const Rect wrect = out.expanded(r).intersect(image);
   const Rect vrect = wrect.expanded(1).intersect(image);
-  Buffer var(vrect, 1), terms(wrect, 4), sums(out, 4), vsum(wrect, 1);
+  Buffer planes(vrect, 2), terms(wrect, 4), sums(out, 4), local(wrect, 2);
   const bool relative = params_.weight == WindowWeight::relative;
   for (int c = 0; c < 3; ++c) {
     for (int y = vrect.y0; y < vrect.y1; ++y) {
       for (int x = vrect.x0; x < vrect.x1; ++x) {
-        var.at(x, y, 0) = relative ? in.x.at(x, y, c) : in.variance.at(x, y, c);
+        planes.at(x, y, 0) = in.variance.at(x, y, c);
+        planes.at(x, y, 1) = in.x.at(x, y, c);
       }
     }
     // Weights 1 / (3x3 mean of var): smoothing gives the weight many more degrees of freedom
@@ -60,15 +61,21 @@ void ClosedFormMixer::mix(const MixInputs& in, const Rect& out, Buffer& alpha) c
     // (E[1/s^2] > 1/sigma^2). Weighting by 1/var makes alpha minimise the window's
     // variance-normalised error, so a firefly's huge variance cannot make its neighbours trust
     // a y it smeared into them (a plain sum would be dominated by it).
-    box_sums(var, 0, wrect, 1, image, vsum, 0);
+    // The variance floor (1 % relative standard deviation of the local mean, or of 0.1 where it
+    // is black) stops a pixel whose few passes happened to agree exactly (var = 0 in a dark,
+    // undersampled region) from taking over its whole window with an infinite weight.
+    box_sums(planes, 0, wrect, 1, image, local, 0);
+    box_sums(planes, 1, wrect, 1, image, local, 1);
     for (int y = wrect.y0; y < wrect.y1; ++y) {
       const int ny = std::min(y + 2, image.y1) - std::max(y - 1, image.y0);
       for (int x = wrect.x0; x < wrect.x1; ++x) {
         const int nx = std::min(x + 2, image.x1) - std::max(x - 1, image.x0);
-        const double m = static_cast<double>(vsum.at(x, y, 0)) / (nx * ny);
-        const double w = params_.weight == WindowWeight::uniform ? 1.0
-                         : relative                              ? 1.0 / (m * m + 0.01)
-                                                                 : 1.0 / (m + kTinyVariance);
+        const double mv = static_cast<double>(local.at(x, y, 0)) / (nx * ny);
+        const double mx = static_cast<double>(local.at(x, y, 1)) / (nx * ny);
+        const double w =
+            params_.weight == WindowWeight::uniform ? 1.0
+            : relative                              ? 1.0 / (mx * mx + 0.01)
+                       : 1.0 / (mv + params_.variance_floor * (mx * mx + 0.01) + kTinyVariance);
         const double v = in.variance.at(x, y, c);
         const double d = static_cast<double>(in.y.at(x, y, c)) - in.x.at(x, y, c);
         terms.at(x, y, 0) = static_cast<float>(w * v);

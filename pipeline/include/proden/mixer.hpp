@@ -26,7 +26,7 @@ class Mixer {
 enum class ClosedFormRule {
   // alpha = S(var - div) / S((y - x)^2): the MSE-optimal blend when y depends on x, by Stein's
   // lemma (E[(x - mu)(y - x)] = div - var); reduces to inverse-error weighting when y is
-  // independent of x. S is a window sum weighted by 1/var (see ClosedFormMixer::mix).
+  // independent of x. S is a weighted window sum (see WindowWeight).
   stein,
   // alpha = S(var) / (S(var) + max(S(SURE), 0)): inverse-error weighting (design.md baseline).
   inverse_error,
@@ -35,14 +35,15 @@ enum class ClosedFormRule {
 // How the window sums weight their pixels.
 enum class WindowWeight {
   uniform,   // plain sums
-  variance,  // 1 / (3x3 mean of var): the window's variance-normalised error
-  relative,  // 1 / ((3x3 mean of x)^2 + 0.01): the window's relMSE
+  variance,  // 1 / (3x3 mean of var + floor): the window's variance-normalised error
+  relative,  // 1 / ((3x3 mean of x)^2 + 0.01): the window's relMSE (default; docs/pipeline.md)
 };
 
 struct ClosedFormParams {
   ClosedFormRule rule = ClosedFormRule::stein;
-  WindowWeight weight = WindowWeight::variance;
-  int radius = 6;  // box window (2r+1)^2 that smooths the noisy per-pixel estimates
+  WindowWeight weight = WindowWeight::relative;
+  float variance_floor = 1e-4f;  // variance weights: floor = variance_floor * (mean x^2 + 0.01)
+  int radius = 6;                // box window (2r+1)^2 that smooths the noisy per-pixel estimates
 };
 
 class ClosedFormMixer final : public Mixer {

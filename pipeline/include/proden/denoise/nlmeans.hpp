@@ -11,9 +11,9 @@
 namespace proden {
 
 struct NlMeansParams {
-  int search_radius = 7;   // r: (2r+1)^2 candidate pixels
+  int search_radius = 5;   // r: (2r+1)^2 candidate pixels (Rousselle: 7; 5 is 1.9x faster)
   int patch_radius = 3;    // f: (2f+1)^2 patch
-  float k = 0.45f;         // colour damping: larger blurs more
+  float k = 1.0f;          // colour damping: larger blurs more (Rousselle: 0.45, see docs)
   float alpha = 1.0f;      // variance cancellation strength
   float epsilon = 1e-10f;  // guards the distance's denominator
   bool use_features = true;
