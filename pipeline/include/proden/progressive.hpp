@@ -38,8 +38,8 @@ struct PipelineOptions {
   int tile = 128;  // inner tile size in pixels
 };
 
-// CPU seconds per stage summed over tiles (so with N threads they add up to about N x wall),
-// and the wall time of the whole run.
+// CPU seconds per stage (thread CPU time, summed over tiles: with N busy threads they add up to
+// about N x wall), and the wall time of the whole run.
 struct StageTimings {
   double denoise = 0, sure = 0, mixer = 0, ttest = 0, compose = 0;
   double wall = 0;

@@ -59,6 +59,7 @@ struct Kernel {
   float* hsum;      // ow * eh
   float* dpatch;    // ow * oh
   float* fdist;     // ow * oh
+  float* fscratch;  // 2 * ow
   float* w;         // ow (one row of weights)
   // Accumulators (ow * oh, planar per channel where 3).
   float* wsum;
@@ -78,19 +79,26 @@ PRODEN_MULTIVERSION void feature_distance(const Kernel& k, std::ptrdiff_t doff) 
                              static_cast<std::size_t>(k.P);
     float* __restrict frow =
         k.fdist + static_cast<std::size_t>(oy) * static_cast<std::size_t>(k.ow);
+    // Per channel, few memory streams per loop (vectorisable), then combine.
+    float* __restrict dd = k.fscratch;
+    float* __restrict vs = k.fscratch + k.ow;
     auto vec3 = [&](const float* const* f, const float* const* fv) {
-      const float *f0 = f[0] + base, *f1 = f[1] + base, *f2 = f[2] + base;
-      const float *v0 = fv[0] + base, *v1 = fv[1] + base, *v2 = fv[2] + base;
+      for (int c = 0; c < 3; ++c) {
+        const float* fp = f[c] + base;
+        const float* fq = fp + doff;
+        const float* vp = fv[c] + base;
+        const float* vq = vp + doff;
+        const bool first = c == 0;
+        for (int ox = 0; ox < k.ow; ++ox) {
+          const float d = fp[ox] - fq[ox], a = vp[ox], b = vq[ox];
+          const float term = d * d - (a + (a < b ? a : b));
+          dd[ox] = first ? term : dd[ox] + term;
+          vs[ox] = first ? a + b : vs[ox] + a + b;
+        }
+      }
+      const float tau = k.tau, inv_kf2 = k.inv_kf2;
       for (int ox = 0; ox < k.ow; ++ox) {
-        const float d0 = f0[ox] - f0[ox + doff], d1 = f1[ox] - f1[ox + doff],
-                    d2 = f2[ox] - f2[ox + doff];
-        const float a0 = v0[ox], b0 = v0[ox + doff], a1 = v1[ox], b1 = v1[ox + doff], a2 = v2[ox],
-                    b2 = v2[ox + doff];
-        const float cancel =
-            (a0 + (a0 < b0 ? a0 : b0)) + (a1 + (a1 < b1 ? a1 : b1)) + (a2 + (a2 < b2 ? a2 : b2));
-        const float vs = a0 + b0 + a1 + b1 + a2 + b2;
-        const float d =
-            (d0 * d0 + d1 * d1 + d2 * d2 - cancel) / (vs > k.tau ? vs : k.tau) * k.inv_kf2;
+        const float d = dd[ox] / (vs[ox] > tau ? vs[ox] : tau) * inv_kf2;
         frow[ox] = frow[ox] > d ? frow[ox] : d;
       }
     };
@@ -98,8 +106,9 @@ PRODEN_MULTIVERSION void feature_distance(const Kernel& k, std::ptrdiff_t doff) 
     if (k.nrm[0]) vec3(k.nrm, k.nrm_v);
     if (k.dep) {
       const float* zp = k.dep + base;
+      const float* zq = zp + doff;
       for (int ox = 0; ox < k.ow; ++ox) {
-        const float z0 = zp[ox], z1 = zp[ox + doff];
+        const float z0 = zp[ox], z1 = zq[ox];
         const float az0 = z0 < 0.0f ? -z0 : z0, az1 = z1 < 0.0f ? -z1 : z1;
         const float scale = k.depth_scale * (az0 + az1) * 0.5f + 1e-6f;
         const float rel = (z0 - z1) / scale;
@@ -116,23 +125,41 @@ PRODEN_MULTIVERSION void accumulate_offset(const Kernel& k, int dx, int dy, bool
   const int taps = 2 * k.F + 1;
   // 1. Per-pixel colour distance d(a, a + delta) over the patch-extended region; the inverse
   // denominators are kept for the derivative below.
+  // Local copies of the plane pointers: the stores below could otherwise alias the Kernel struct
+  // in the compiler's eyes and force reloads that block vectorisation.
+  const float *X0 = k.X[0], *X1 = k.X[1], *X2 = k.X[2];
+  const float *V0 = k.V[0], *V1 = k.V[1], *V2 = k.V[2];
+  float *I0 = k.inv_s[0], *I1 = k.inv_s[1], *I2 = k.inv_s[2];
+  const float alpha = k.alpha, eps = k.eps, k2 = k.k2;
+  const std::size_t pw = static_cast<std::size_t>(k.pw), R = static_cast<std::size_t>(k.R);
   for (int ey = 0; ey < k.eh; ++ey) {
-    const std::size_t base = static_cast<std::size_t>(ey + k.R) * static_cast<std::size_t>(k.pw) +
-                             static_cast<std::size_t>(k.R);
+    const std::size_t base = (static_cast<std::size_t>(ey) + R) * pw + R;
     const std::size_t erow = static_cast<std::size_t>(ey) * ew;
+    // Separate pointers for the shifted pixel: an unsigned index plus a negative offset is not
+    // an affine address and would block vectorisation.
+    const float *xa0 = X0 + base, *xa1 = X1 + base, *xa2 = X2 + base;
+    const float *va0 = V0 + base, *va1 = V1 + base, *va2 = V2 + base;
+    const float *xb0 = xa0 + doff, *xb1 = xa1 + doff, *xb2 = xa2 + doff;
+    const float *vb0 = va0 + doff, *vb1 = va1 + doff, *vb2 = va2 + doff;
     float* __restrict drow = k.dist + erow;
-    for (std::size_t ex = 0; ex < ew; ++ex) drow[ex] = 0.0f;
-    for (int c = 0; c < 3; ++c) {
-      const float* xa = k.X[c] + base;
-      const float* va = k.V[c] + base;
-      float* __restrict inv = k.inv_s[c] + erow;
-      for (std::size_t ex = 0; ex < ew; ++ex) {
-        const float diff = xa[ex] - xa[ex + doff], a = va[ex], b = va[ex + doff];
-        const float is = 1.0f / (k.eps + k.k2 * (a + b));
+    float* __restrict i0 = I0 + erow;
+    float* __restrict i1 = I1 + erow;
+    float* __restrict i2 = I2 + erow;
+    const int n_ex = k.ew;
+    // One channel at a time keeps the loop at four memory streams (vectorisable).
+    auto channel = [&](const float* xa, const float* xb, const float* va, const float* vb,
+                       float* __restrict inv, bool first) {
+      for (int ex = 0; ex < n_ex; ++ex) {
+        const float d = xa[ex] - xb[ex], a = va[ex], b = vb[ex];
+        const float is = 1.0f / (eps + k2 * (a + b));
         inv[ex] = is;
-        drow[ex] += (diff * diff - k.alpha * (a + (a < b ? a : b))) * is;
+        const float term = (d * d - alpha * (a + (a < b ? a : b))) * is;
+        drow[ex] = first ? term : drow[ex] + term;
       }
-    }
+    };
+    channel(xa0, xb0, va0, vb0, i0, true);
+    channel(xa1, xb1, va1, vb1, i1, false);
+    channel(xa2, xb2, va2, vb2, i2, false);
   }
   // 2. Box filter over the patch (separable), scaled to a mean over patch and channels.
   for (int ey = 0; ey < k.eh; ++ey) {
@@ -170,23 +197,37 @@ PRODEN_MULTIVERSION void accumulate_offset(const Kernel& k, int dx, int dy, bool
     float* __restrict wrow = k.w;
     float* __restrict ws = k.wsum + orow;
     float* __restrict sf = k.self + orow;
-    for (std::size_t ox = 0; ox < ow; ++ox) {
-      const float dc = dp[ox] > 0.0f ? dp[ox] : 0.0f;
-      const float f = fd ? (fd[ox] > 0.0f ? fd[ox] : 0.0f) : 0.0f;
-      wrow[ox] = detail::exp_neg(-(dc + f));
-      ws[ox] += wrow[ox];
-    }
-    if (same_y) {
+    if (fd) {
       for (std::size_t ox = 0; ox < ow; ++ox) {
-        const int gx = k.gx[ox];
-        const int qx = gx + dx < 0 ? 0 : (gx + dx >= k.width ? k.width - 1 : gx + dx);
-        sf[ox] += qx == gx ? wrow[ox] : 0.0f;
+        const float dc = dp[ox] > 0.0f ? dp[ox] : 0.0f;
+        const float f = fd[ox] > 0.0f ? fd[ox] : 0.0f;
+        wrow[ox] = detail::exp_neg(-(dc + f));
+        ws[ox] += wrow[ox];
+      }
+    } else {
+      for (std::size_t ox = 0; ox < ow; ++ox) {
+        const float dc = dp[ox] > 0.0f ? dp[ox] : 0.0f;
+        wrow[ox] = detail::exp_neg(-dc);
+        ws[ox] += wrow[ox];
+      }
+    }
+    // Weight on the centre pixel itself: q = clamp(p + delta) == p, i.e. delta = 0, or delta
+    // pointing out of the image from a border pixel.
+    if (same_y) {
+      if (dx == 0) {
+        for (std::size_t ox = 0; ox < ow; ++ox) sf[ox] += wrow[ox];
+      } else if (dx < 0 && k.gx[0] == 0) {
+        sf[0] += wrow[0];
+      } else if (dx > 0 && k.gx[ow - 1] == k.width - 1) {
+        sf[ow - 1] += wrow[ow - 1];
       }
     }
     for (int c = 0; c < 3; ++c) {
       const float* xp = k.X[c] + prow;
+      const float* xqp = xp + doff;  // q = p + delta
+      const float* xap = xp - doff;  // p - delta
       float* __restrict nu = k.num + static_cast<std::size_t>(c) * n_out + orow;
-      for (std::size_t ox = 0; ox < ow; ++ox) nu[ox] += wrow[ox] * xp[ox + doff];
+      for (std::size_t ox = 0; ox < ow; ++ox) nu[ox] += wrow[ox] * xqp[ox];
       if (!k.derivative) continue;
       float* __restrict a = k.A + static_cast<std::size_t>(c) * n_out + orow;
       float* __restrict b = k.B + static_cast<std::size_t>(c) * n_out + orow;
@@ -198,7 +239,7 @@ PRODEN_MULTIVERSION void accumulate_offset(const Kernel& k, int dx, int dy, bool
         const float* is_a =
             is_p - (static_cast<std::ptrdiff_t>(dy) * static_cast<std::ptrdiff_t>(ew) + dx);
         for (std::size_t ox = 0; ox < ow; ++ox) {
-          const float xc = xp[ox], xq = xp[ox + doff], xa = xp[ox - doff];
+          const float xc = xp[ox], xq = xqp[ox], xa = xap[ox];
           const float g = (xc - xq) * is_p[ox] + (xc - xa) * is_a[ox];
           const float dw = dp[ox] > 0.0f ? -wrow[ox] * g * scale : 0.0f;
           a[ox] += dw * xq;
@@ -206,7 +247,7 @@ PRODEN_MULTIVERSION void accumulate_offset(const Kernel& k, int dx, int dy, bool
         }
       } else {
         for (std::size_t ox = 0; ox < ow; ++ox) {
-          const float xc = xp[ox], xq = xp[ox + doff];
+          const float xc = xp[ox], xq = xqp[ox];
           const float g = (xc - xq) * is_p[ox];
           const float dw = dp[ox] > 0.0f ? -wrow[ox] * g * scale : 0.0f;
           a[ox] += dw * xq;
@@ -299,6 +340,8 @@ void NlMeansDenoiser::denoise(const DenoiseInputs& in, const Rect& out, Buffer& 
   k.hsum = hsum.data();
   k.dpatch = dpatch.data();
   k.fdist = fdist.data();
+  std::vector<float> fscratch(2 * static_cast<std::size_t>(ow));
+  k.fscratch = fscratch.data();
   k.w = wrow.data();
   k.wsum = wsum.data();
   k.self = self.data();
