@@ -32,7 +32,8 @@ struct PipelineOptions {
   bool features = true;  // let the denoiser use albedo/normal/depth when present
   DivergenceMethod divergence = DivergenceMethod::automatic;
   MonteCarloProbes probes;
-  ClosedFormParams mixer;  // used when no mixer is passed
+  ClosedFormParams mixer;        // used when no mixer is passed
+  int variance_pool_radius = 2;  // mixer and t-test read Var[x] averaged over (2r+1)^2
   bool t_test = true;
   TTestParams ttest;
   int tile = 128;  // inner tile size in pixels
