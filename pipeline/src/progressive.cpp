@@ -70,6 +70,24 @@ bool all_zero(const Image& img) {
 
 }  // namespace
 
+DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, const Image& variance,
+                             bool features) {
+  DenoiseInputs din;
+  din.width = colour.width();
+  din.height = colour.height();
+  din.colour = view_of(colour);
+  din.variance = view_of(variance);
+  if (features) {
+    din.albedo = view_of(frame.albedo);
+    din.normal = view_of(frame.normal);
+    din.depth = view_of(frame.depth);
+    din.albedo_variance = view_of(frame.albedo_variance);
+    din.normal_variance = view_of(frame.normal_variance);
+    din.depth_variance = view_of(frame.depth_variance);
+  }
+  return din;
+}
+
 int pipeline_halo(const Denoiser& denoiser, const Mixer& mixer, const PipelineOptions& options) {
   return denoiser.radius() + mixer.radius() + (options.t_test ? options.ttest.radius : 0);
 }
@@ -124,19 +142,7 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
     return res;
   }
 
-  DenoiseInputs din;
-  din.width = W;
-  din.height = H;
-  din.colour = view_of(x);
-  din.variance = view_of(var);
-  if (options.features && nlp.use_features) {
-    din.albedo = view_of(frame.albedo);
-    din.normal = view_of(frame.normal);
-    din.depth = view_of(frame.depth);
-    din.albedo_variance = view_of(frame.albedo_variance);
-    din.normal_variance = view_of(frame.normal_variance);
-    din.depth_variance = view_of(frame.depth_variance);
-  }
+  const DenoiseInputs din = denoise_inputs(frame, x, var, options.features && nlp.use_features);
   // Only a denoiser that reads features makes them inputs of this run.
   const bool reads_features = &denoiser == &nlmeans;
   res.inputs = {reads_features && din.albedo.valid(), reads_features && din.normal.valid(),

@@ -44,15 +44,7 @@ FrameEstimate noisy(const Image& truth, float rel_var, std::uint64_t seed) {
 }
 
 DenoiseInputs inputs_of(const FrameEstimate& f) {
-  DenoiseInputs in;
-  in.width = f.mean.width();
-  in.height = f.mean.height();
-  in.colour = view_of(f.mean);
-  in.variance = view_of(f.variance);
-  in.albedo = view_of(f.albedo);
-  in.normal = view_of(f.normal);
-  in.depth = view_of(f.depth);
-  return in;
+  return denoise_inputs(f, f.mean, f.variance, true);
 }
 
 double max_rel_diff(const Image& a, const Image& b) {

@@ -58,6 +58,11 @@ struct PipelineResult {
   bool noise_free = false;  // Var[x] == 0 everywhere: nothing to denoise, z = x
 };
 
+// Views of a frame for a denoiser: `colour` and `variance` (the frame's own or sanitised copies,
+// which must outlive the result) and, with `features`, the frame's feature means and variances.
+DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, const Image& variance,
+                             bool features);
+
 // Halo the tiles need for these stages.
 int pipeline_halo(const Denoiser& denoiser, const Mixer& mixer, const PipelineOptions& options);
 
