@@ -4,13 +4,17 @@
 #   make test    build, run the whole CTest suite, then the unit tests again under ASan+UBSan
 #   make run     build and start the daemon (`proden serve`) with a demo job fed by the samples
 #   make run-cli build and run the CLI on the bundled samples
-.PHONY: build test run run-cli deps asan test-asan format clean
+#   make bench   build the benchmarks into build-bench/, render missing evaluation sets (EVALDATA,
+#                default /work/evaldata; slow on a fresh machine), regenerate bench/results/ and
+#                bench/RESULTS.md (bench/run_all.sh documents its variables)
+.PHONY: build test run run-cli deps asan test-asan format clean bench
 
 BUILD_DIR ?= build
 ASAN_DIR  ?= build-asan
 JOBS      ?= $(shell nproc)
 WERROR    ?= ON
 OUT_DIR   ?= out
+BENCH_DIR ?= build-bench
 
 deps:
 	@tools/install-deps.sh
@@ -43,6 +47,12 @@ run-cli: build
 	$(BUILD_DIR)/proden eval --ref samples/renders/cornell/reference.exr \
 	    samples/renders/cornell/pass_00.exr $(OUT_DIR)/cornell.exr
 	@echo "outputs in $(OUT_DIR)/"
+
+bench: deps
+	cmake -S . -B $(BENCH_DIR) -DCMAKE_BUILD_TYPE=Release -DPRODEN_WERROR=$(WERROR)
+	cmake --build $(BENCH_DIR) -j $(JOBS) --target proden_eval_levels proden_bench_pipeline \
+	    proden_micro_kernels
+	BUILD_DIR=$(BENCH_DIR) bench/run_all.sh
 
 format:
 	clang-format -i $$(git ls-files '*.cpp' '*.hpp')

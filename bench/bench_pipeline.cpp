@@ -1,98 +1,462 @@
-// Per-stage time of the progressive pipeline on a synthetic frame (default 1920x1080 with
-// albedo/normal/depth), with 1 and all threads, analytic and Monte-Carlo divergence.
-// Prints seconds per stage, megapixels per second and the ratios the project tracks.
+// Performance harness: per-stage time of a full progressive update on synthetic Cycles-like
+// frames (colour + albedo + normal + depth, 8 passes of 4 spp) at 1920x1080 and 3840x2160, with 1
+// and N threads: EXR read of a pass and write of the result (I/O), accumulate (add one pass),
+// estimate, denoise, SURE, mixer, t-test, compose; megapixels per second; peak memory (VmHWM) and
+// bytes of accumulated state per pixel; and the ratios the project tracks, all from this one run:
+//   update / one more Cycles spp (needs --cycles-spp-seconds, measured by bench/run_all.sh with
+//   Blender in the same run), SURE / one denoiser run (analytic and Monte-Carlo), mixer GFLOP/s /
+//   sgemm GFLOP/s (n/a until the learned mixer lands; sgemm is measured), N threads / 1, 4K /
+//   1080p.
+//
+//   proden_bench_pipeline [--width W --height H] [--no-4k] [--no-mc] [--no-io] [--threads N]
+//                         [--cycles-spp-seconds S] [--json FILE] [--tmp DIR]
+#include <tbb/blocked_range2d.h>
 #include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
 
+#include <sys/resource.h>
+
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <memory>
 #include <random>
+#include <string>
 #include <thread>
+#include <vector>
 
+#include "proden/accumulator.hpp"
+#include "proden/io/image_writer.hpp"
+#include "proden/io/pass_reader.hpp"
 #include "proden/progressive.hpp"
 
+#if defined(PRODEN_BENCH_OPENBLAS)
+#include <cblas.h>
+#endif
+
 using namespace proden;
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
 
 namespace {
 
-FrameEstimate synthetic(int w, int h) {
-  std::mt19937 rng(1);
+double since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+// Peak resident set (VmHWM) in bytes, 0 if unknown.
+double peak_rss_bytes() {
+  std::ifstream f("/proc/self/status");
+  std::string line;
+  while (std::getline(f, line)) {
+    if (line.rfind("VmHWM:", 0) == 0) return std::atof(line.c_str() + 6) * 1024.0;
+  }
+  return 0.0;
+}
+
+// CPU seconds (user + system) of the process so far.
+double cpu_seconds() {
+  rusage u{};
+  getrusage(RUSAGE_SELF, &u);
+  return static_cast<double>(u.ru_utime.tv_sec + u.ru_stime.tv_sec) +
+         1e-6 * static_cast<double>(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+}
+
+// Smooth scene-like signal + per-pass Gaussian noise; features piecewise constant.
+Pass synthetic_pass(int w, int h, int k, double spp) {
+  std::mt19937 rng(static_cast<unsigned>(1000 + k));
   std::normal_distribution<float> n(0.0f, 1.0f);
-  FrameEstimate f;
-  f.mean = Image(w, h, 3);
-  f.variance = Image(w, h, 3);
-  f.albedo = Image(w, h, 3);
-  f.normal = Image(w, h, 3);
-  f.depth = Image(w, h, 1);
+  Pass p;
+  p.spp = spp;
+  p.colour = Image(w, h, 3);
+  p.albedo = Image(w, h, 3);
+  p.normal = Image(w, h, 3);
+  p.depth = Image(w, h, 1);
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
       const bool right = x > w / 2;
-      const float base =
-          0.3f + 0.2f * std::sin(0.05f * static_cast<float>(x)) + (right ? 0.3f : 0.0f);
+      const float base = 0.3f + 0.2f * std::sin(0.05f * static_cast<float>(x)) +
+                         0.1f * std::cos(0.03f * static_cast<float>(y)) + (right ? 0.3f : 0.0f);
+      const float sd = std::sqrt(0.08f * base);
       for (int c = 0; c < 3; ++c) {
-        const float var = 0.01f * base;
-        f.variance.at(x, y, c) = var;
-        f.mean.at(x, y, c) = base + std::sqrt(var) * n(rng);
-        f.albedo.at(x, y, c) = right ? 0.8f : 0.4f;
-        f.normal.at(x, y, c) = c == 2 ? 1.0f : 0.0f;
+        p.colour.at(x, y, c) = std::max(0.0f, base + sd * n(rng));
+        p.albedo.at(x, y, c) = right ? 0.8f : 0.4f;
+        p.normal.at(x, y, c) = c == 2 ? -1.0f : 0.0f;
       }
-      f.depth.at(x, y, 0) = right ? 2.0f : 5.0f;
+      p.depth.at(x, y, 0) = right ? 2.0f : 5.0f;
     }
   }
-  f.albedo_variance = Image(w, h, 3);
-  f.normal_variance = Image(w, h, 3);
-  f.depth_variance = Image(w, h, 1);
-  return f;
+  return p;
+}
+
+// The denoiser alone (no Jacobian), tiled and parallel like the pipeline: "one denoiser run".
+double denoise_only(const FrameEstimate& est, const PipelineOptions& po) {
+  const NlMeansDenoiser nl(po.nlmeans);
+  DenoiseInputs din;
+  din.width = est.mean.width();
+  din.height = est.mean.height();
+  din.colour = view_of(est.mean);
+  din.variance = view_of(est.variance);
+  din.albedo = view_of(est.albedo);
+  din.normal = view_of(est.normal);
+  din.depth = view_of(est.depth);
+  din.albedo_variance = view_of(est.albedo_variance);
+  din.normal_variance = view_of(est.normal_variance);
+  din.depth_variance = view_of(est.depth_variance);
+  Image y(din.width, din.height, 3);
+  const int t = po.tile;
+  const auto t0 = Clock::now();
+  tbb::parallel_for(
+      tbb::blocked_range2d<int>(0, (din.height + t - 1) / t, 1, 0, (din.width + t - 1) / t, 1),
+      [&](const tbb::blocked_range2d<int>& r) {
+        for (int ty = r.rows().begin(); ty < r.rows().end(); ++ty) {
+          for (int tx = r.cols().begin(); tx < r.cols().end(); ++tx) {
+            const Rect rect{tx * t, ty * t, std::min(din.width, (tx + 1) * t),
+                            std::min(din.height, (ty + 1) * t)};
+            Buffer b(rect, 3);
+            nl.denoise(din, rect, b, nullptr);
+            store(b, rect, y);
+          }
+        }
+      });
+  return since(t0);
+}
+
+// sgemm GFLOP/s on n x n matrices with `threads` threads.
+double sgemm_gflops(int n, int threads, std::string& how) {
+  std::vector<float> a(static_cast<std::size_t>(n) * n), b(a.size()), c(a.size(), 0.0f);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  for (auto& v : a) v = u(rng);
+  for (auto& v : b) v = u(rng);
+  int reps = 0;
+  double secs = 0;
+#if defined(PRODEN_BENCH_OPENBLAS)
+  how = "OpenBLAS cblas_sgemm (Debian libopenblas0-pthread)";
+  openblas_set_num_threads(threads);
+  cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, n, n, n, 1.0f, a.data(), n, b.data(), n,
+              0.0f, c.data(), n);  // warm-up
+  const auto t0 = Clock::now();
+  while (secs < 1.0 || reps < 3) {
+    cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, n, n, n, 1.0f, a.data(), n, b.data(), n,
+                0.0f, c.data(), n);
+    ++reps;
+    secs = since(t0);
+  }
+#else
+  how = "plain blocked C++ loop (no OpenBLAS found at configure time)";
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                            static_cast<std::size_t>(threads));
+  const int bs = 64;
+  const auto t0 = Clock::now();
+  while (secs < 1.0 || reps < 1) {
+    std::fill(c.begin(), c.end(), 0.0f);
+    tbb::parallel_for(0, (n + bs - 1) / bs, [&](int bi) {
+      for (int kk = 0; kk < n; kk += bs)
+        for (int i = bi * bs; i < std::min(n, (bi + 1) * bs); ++i)
+          for (int k = kk; k < std::min(n, kk + bs); ++k) {
+            const float aik = a[static_cast<std::size_t>(i) * n + k];
+            float* ci = &c[static_cast<std::size_t>(i) * n];
+            const float* bk = &b[static_cast<std::size_t>(k) * n];
+            for (int j = 0; j < n; ++j) ci[j] += aik * bk[j];
+          }
+    });
+    ++reps;
+    secs = since(t0);
+  }
+#endif
+  return 2.0 * n * n * static_cast<double>(n) * reps / secs / 1e9;
+}
+
+struct SizeResult {
+  int w = 0, h = 0;
+  double read_s = 0, write_s = 0, write_aov_s = 0, exr_mb = 0;
+  double add_s[2] = {0, 0}, estimate_s[2] = {0, 0};
+  StageTimings an[2];  // analytic, [0] = 1 thread, [1] = N threads
+  StageTimings mc;     // Monte Carlo, N threads
+  bool have_mc = false;
+  double denoise_only_s[2] = {0, 0};
+  double cores_obtained[2] = {0, 0};  // process CPU seconds / wall during the analytic run
+  double peak_bytes = 0;
+  double state_bpp = 0, layout_bpp = 0;
+  double update_s = 0;  // add + estimate + pipeline + write (N threads)
+};
+
+void print_json_stage(std::FILE* f, const char* name, const StageTimings& t, bool last) {
+  std::fprintf(f,
+               "    \"%s\": {\"denoise\": %.6f, \"sure\": %.6f, \"mixer\": %.6f, \"ttest\": %.6f, "
+               "\"compose\": %.6f, \"wall\": %.6f}%s\n",
+               name, t.denoise, t.sure, t.mixer, t.ttest, t.compose, t.wall, last ? "" : ",");
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  int w = 1920, h = 1080;
-  bool mc = true;
+  std::vector<std::pair<int, int>> sizes = {{1920, 1080}, {3840, 2160}};
+  int w = 0, h = 0;
+  bool mc = true, io = true, four_k = true;
+  double cycles_spp_s = 0;
+  std::string json_path, tmp = fs::temp_directory_path().string();
+  unsigned cores = std::max(1u, std::thread::hardware_concurrency());
   for (int i = 1; i < argc; ++i) {
-    if (!std::strcmp(argv[i], "--width") && i + 1 < argc) w = std::atoi(argv[++i]);
-    if (!std::strcmp(argv[i], "--height") && i + 1 < argc) h = std::atoi(argv[++i]);
-    if (!std::strcmp(argv[i], "--no-mc")) mc = false;
-  }
-  const FrameEstimate f = synthetic(w, h);
-  const double mpix = static_cast<double>(w) * h / 1e6;
-  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
-  std::printf(
-      "frame %dx%d (%.2f MP), HDR+ALB+NRM+DEP, default options (NL-means r=7 f=3, tile 128)\n", w,
-      h, mpix);
-  std::printf("%-10s %7s %9s %9s %9s %9s %9s %9s %9s\n", "divergence", "threads", "denoise", "sure",
-              "mixer", "t-test", "compose", "wall", "MP/s");
-  double wall1 = 0, wallN = 0, denoise1 = 0, sure_an = 0, sure_mc = 0;
-  for (const bool use_mc : {false, true}) {
-    if (use_mc && !mc) continue;
-    for (unsigned threads : {1u, cores}) {
-      if (use_mc && threads == 1) continue;  // MC at full width only: it is 5x the cost
-      tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
-      PipelineOptions o;
-      o.divergence = use_mc ? DivergenceMethod::monte_carlo : DivergenceMethod::analytic;
-      const PipelineResult r = run_pipeline(f, o);
-      const auto& t = r.timings;
-      std::printf("%-10s %7u %9.3f %9.3f %9.3f %9.3f %9.3f %9.3f %9.2f\n", r.divergence.c_str(),
-                  threads, t.denoise, t.sure, t.mixer, t.ttest, t.compose, t.wall, mpix / t.wall);
-      if (!use_mc && threads == 1) {
-        wall1 = t.wall;
-        denoise1 = t.denoise;
-        sure_an = t.sure;
-      }
-      if (!use_mc && threads == cores) wallN = t.wall;
-      if (use_mc) sure_mc = t.sure / t.denoise;
+    const std::string a = argv[i];
+    const bool more = i + 1 < argc;
+    if (a == "--width" && more)
+      w = std::atoi(argv[++i]);
+    else if (a == "--height" && more)
+      h = std::atoi(argv[++i]);
+    else if (a == "--no-mc")
+      mc = false;
+    else if (a == "--no-io")
+      io = false;
+    else if (a == "--no-4k")
+      four_k = false;
+    else if (a == "--threads" && more)
+      cores = static_cast<unsigned>(std::max(1, std::atoi(argv[++i])));
+    else if (a == "--cycles-spp-seconds" && more)
+      cycles_spp_s = std::atof(argv[++i]);
+    else if (a == "--json" && more)
+      json_path = argv[++i];
+    else if (a == "--tmp" && more)
+      tmp = argv[++i];
+    else {
+      std::fprintf(stderr,
+                   "usage: %s [--width W --height H] [--no-4k] [--no-mc] [--no-io] "
+                   "[--threads N] [--cycles-spp-seconds S] [--json FILE] [--tmp DIR]\n",
+                   argv[0]);
+      return 2;
     }
   }
-  std::printf("\nratios (same run):\n");
-  std::printf("  %u threads vs 1 (analytic)          %.2fx\n", cores, wall1 / wallN);
-  std::printf("  SURE / one denoiser run, analytic   %.3f\n", sure_an / denoise1);
-  if (mc) std::printf("  SURE / one denoiser run, MC (K=4)   %.3f\n", sure_mc);
-  // Cycles costs ~1.4 us per sample-pixel on this machine (design.md §7; measured in bench/
-  // accuracy runs): one more sample per pixel of this frame.
-  const double one_spp = 1.4e-6 * w * h;
-  std::printf("  update (%u threads) / one more Cycles spp (%.2f s est.)  %.2f\n", cores, one_spp,
-              wallN / one_spp);
+  if (w > 0 && h > 0)
+    sizes = {{w, h}};
+  else if (!four_k)
+    sizes.resize(1);
+  const int npass = 8;
+  const double spp_per_pass = 4;
+  const unsigned thr[2] = {1u, cores};
+  std::vector<SizeResult> results;
+
+  std::printf(
+      "synthetic Cycles-like frames: HDR+ALB+NRM+DEP, %d passes x %.0f spp; default "
+      "pipeline (NL-means r=5 f=3, closed-form Stein mixer r=6, t-test, tile 128); "
+      "threads 1 and %u\n",
+      npass, spp_per_pass, cores);
+  for (const auto& [W, H] : sizes) {
+    SizeResult s;
+    s.w = W;
+    s.h = H;
+    const double mp = static_cast<double>(W) * H / 1e6;
+    std::printf("\n== %dx%d (%.2f MP)\n", W, H, mp);
+    std::fflush(stdout);
+    // Passes: 7 in memory, the last one through an EXR round trip when I/O is measured.
+    std::vector<Pass> passes;
+    for (int k = 0; k < npass; ++k) passes.push_back(synthetic_pass(W, H, k, spp_per_pass));
+    if (io) {
+      const std::string path = (fs::path(tmp) / ("proden_bench_pass_" + std::to_string(W) + "x" +
+                                                 std::to_string(H) + ".exr"))
+                                   .string();
+      const Pass& p = passes.back();
+      std::vector<io::NamedChannel> ch;
+      io::add_layer(ch, "ViewLayer.Combined.", p.colour);
+      io::add_layer(ch, "ViewLayer.Denoising Albedo.", p.albedo);
+      io::add_layer(ch, "ViewLayer.Denoising Normal.", p.normal, "XYZ");
+      io::add_layer(ch, "ViewLayer.Denoising Depth.", p.depth, "Z");
+      io::WriteOptions wo;
+      wo.attributes = {{"cycles.ViewLayer.samples", "4"}};
+      io::write_image(path, W, H, ch, wo);  // the farm's pass (not timed: the renderer writes it)
+      s.exr_mb = static_cast<double>(fs::file_size(path)) / 1e6;
+      auto t0 = Clock::now();
+      Pass back = io::read_pass(path);
+      s.read_s = since(t0);
+      fs::remove(path);
+      if (back.width() != W || back.albedo.empty() || back.depth.empty()) {
+        std::fprintf(stderr, "EXR round trip lost data\n");
+        return 1;
+      }
+      passes.back() = std::move(back);
+    }
+    // Accumulate: all passes at 1 and N threads (fresh accumulators), add timed per pass.
+    FrameEstimate est;
+    for (int ti = 0; ti < 2; ++ti) {
+      tbb::global_control limit(tbb::global_control::max_allowed_parallelism, thr[ti]);
+      FrameAccumulator acc;
+      double add = 0;
+      for (int k = 0; k < npass; ++k) {
+        const auto t0 = Clock::now();
+        acc.add(passes[static_cast<std::size_t>(k)], "pass_" + std::to_string(k));
+        add += since(t0);
+      }
+      s.add_s[ti] = add / npass;
+      const auto t0 = Clock::now();
+      FrameEstimate e = acc.estimate();
+      s.estimate_s[ti] = since(t0);
+      s.state_bpp = static_cast<double>(acc.state_bytes()) / (static_cast<double>(W) * H);
+      s.layout_bpp = static_cast<double>(FrameAccumulator::bytes_per_pixel(acc.layout()));
+      if (ti == 1) est = std::move(e);
+    }
+    passes.clear();
+    passes.shrink_to_fit();
+    // Pipeline: analytic at 1 and N threads, denoiser alone at 1 and N, MC at N.
+    Image result;
+    for (int ti = 0; ti < 2; ++ti) {
+      tbb::global_control limit(tbb::global_control::max_allowed_parallelism, thr[ti]);
+      PipelineOptions o;
+      o.divergence = DivergenceMethod::analytic;
+      const double c0 = cpu_seconds();
+      PipelineResult r = run_pipeline(est, o);
+      s.cores_obtained[ti] = (cpu_seconds() - c0) / r.timings.wall;
+      s.an[ti] = r.timings;
+      s.denoise_only_s[ti] = denoise_only(est, o);
+      if (ti == 1) result = std::move(r.result);
+    }
+    if (mc && (W * H <= 1920 * 1080 || sizes.size() == 1)) {
+      tbb::global_control limit(tbb::global_control::max_allowed_parallelism, cores);
+      PipelineOptions o;
+      o.divergence = DivergenceMethod::monte_carlo;
+      s.mc = run_pipeline(est, o).timings;
+      s.have_mc = true;
+    }
+    if (io) {
+      const std::string path = (fs::path(tmp) / "proden_bench_out.exr").string();
+      std::vector<io::NamedChannel> ch;
+      io::add_layer(ch, "", result);
+      auto t0 = Clock::now();
+      io::write_image(path, W, H, ch);
+      s.write_s = since(t0);
+      io::add_layer(ch, "render.", est.mean);
+      io::add_layer(ch, "variance.", est.variance);
+      io::add_layer(ch, "denoised.", result);
+      io::add_layer(ch, "alpha.", result);
+      io::add_layer(ch, "sure.", est.variance);
+      t0 = Clock::now();
+      io::write_image(path, W, H, ch);
+      s.write_aov_s = since(t0);
+      fs::remove(path);
+    }
+    s.peak_bytes = peak_rss_bytes();
+    s.update_s = s.read_s + s.add_s[1] + s.estimate_s[1] + s.an[1].wall + s.write_s;
+
+    std::printf(
+        "I/O: read one Cycles pass EXR (float, zip, 10 ch, %.1f MB) %.3f s; write result "
+        "RGB %.3f s, with AOVs (18 ch) %.3f s\n",
+        s.exr_mb, s.read_s, s.write_s, s.write_aov_s);
+    std::printf("%-22s %9s %9s\n", "stage (s)", "1 thread",
+                (std::to_string(cores) + " threads").c_str());
+    std::printf("%-22s %9.3f %9.3f\n", "accumulate (add 1)", s.add_s[0], s.add_s[1]);
+    std::printf("%-22s %9.3f %9.3f\n", "estimate", s.estimate_s[0], s.estimate_s[1]);
+    std::printf("%-22s %9.3f %9.3f   (CPU s summed over tiles)\n", "denoise + Jacobian",
+                s.an[0].denoise, s.an[1].denoise);
+    std::printf("%-22s %9.3f %9.3f\n", "SURE", s.an[0].sure, s.an[1].sure);
+    std::printf("%-22s %9.3f %9.3f\n", "mixer", s.an[0].mixer, s.an[1].mixer);
+    std::printf("%-22s %9.3f %9.3f\n", "t-test", s.an[0].ttest, s.an[1].ttest);
+    std::printf("%-22s %9.3f %9.3f\n", "compose", s.an[0].compose, s.an[1].compose);
+    std::printf("%-22s %9.3f %9.3f\n", "pipeline wall", s.an[0].wall, s.an[1].wall);
+    std::printf("%-22s %9.2f %9.2f\n", "pipeline MP/s", mp / s.an[0].wall, mp / s.an[1].wall);
+    std::printf("%-22s %9.2f %9.2f   (process CPU s / wall: < threads = machine busy)\n",
+                "cores obtained", s.cores_obtained[0], s.cores_obtained[1]);
+    std::printf("%-22s %9.3f %9.3f   (wall)\n", "denoiser alone", s.denoise_only_s[0],
+                s.denoise_only_s[1]);
+    if (s.have_mc)
+      std::printf("Monte-Carlo divergence (K=4), %u threads: denoise %.3f sure %.3f wall %.3f\n",
+                  cores, s.mc.denoise, s.mc.sure, s.mc.wall);
+    std::printf(
+        "full update (read pass + add + estimate + pipeline + write), %u threads: %.3f s "
+        "(%.2f MP/s)\n",
+        cores, s.update_s, mp / s.update_s);
+    std::printf("state %.0f B/px (bytes_per_pixel(layout) %.0f), peak RSS so far %.0f MB\n",
+                s.state_bpp, s.layout_bpp, s.peak_bytes / 1e6);
+    std::fflush(stdout);
+    results.push_back(s);
+  }
+
+  // Ratios (same run).
+  const SizeResult& a = results.front();
+  std::string how;
+  const int gemm_n = a.w * a.h < 100000 ? 256 : 1024;
+  const double gf1 = sgemm_gflops(gemm_n, 1, how);
+  const double gfN = sgemm_gflops(gemm_n, static_cast<int>(cores), how);
+  const double sure_an =
+      (a.an[0].denoise + a.an[0].sure - a.denoise_only_s[0]) / a.denoise_only_s[0];
+  const double sure_an_stage = a.an[0].sure / a.denoise_only_s[0];
+  const double sure_mc = a.have_mc ? a.mc.sure / a.mc.denoise : NAN;
+  const double thr_ratio = a.an[0].wall / a.an[1].wall;
+  const double k4 = results.size() > 1 ? results[1].an[1].wall / a.an[1].wall : NAN;
+  const double k4_1 = results.size() > 1 ? results[1].an[0].wall / a.an[0].wall : NAN;
+  const double upd_ratio = cycles_spp_s > 0 ? a.update_s / cycles_spp_s : NAN;
+  std::printf("\nsgemm %dx%d: %.1f GFLOP/s (1 thread), %.1f GFLOP/s (%u threads) via %s\n", gemm_n,
+              gemm_n, gf1, gfN, cores, how.c_str());
+  std::printf("\nratios (same run, %dx%d unless noted):\n", a.w, a.h);
+  if (cycles_spp_s > 0)
+    std::printf("  full update / one more Cycles spp (%.3f s)           %.2f   (goal < 1.0)\n",
+                cycles_spp_s, upd_ratio);
+  else
+    std::printf(
+        "  full update / one more Cycles spp                    n/a (no --cycles-spp-seconds)\n");
+  std::printf(
+      "  SURE / one denoiser run, analytic (Jacobian + SURE)  %.3f  (goal <= 0.2; SURE "
+      "stage alone %.3f)\n",
+      sure_an, sure_an_stage);
+  if (a.have_mc)
+    std::printf("  SURE / one denoiser run, Monte-Carlo probe (K=4)     %.3f\n", sure_mc);
+  std::printf(
+      "  mixer network GFLOP/s / sgemm GFLOP/s                n/a until the learned mixer "
+      "lands (sgemm %.1f GFLOP/s on %u threads)\n",
+      gfN, cores);
+  std::printf(
+      "  %u threads / 1, pipeline wall                         %.2fx (goal >= 1.8x; the "
+      "process obtained %.2f cores with %u threads)\n",
+      cores, thr_ratio, a.cores_obtained[1], cores);
+  if (results.size() > 1)
+    std::printf(
+        "  4K / 1080p, pipeline wall, %u threads                 %.2fx (goal <= 4.2x; 1 "
+        "thread %.2fx)\n",
+        cores, k4, k4_1);
+
+  if (!json_path.empty()) {
+    std::FILE* f = std::fopen(json_path.c_str(), "w");
+    if (!f) {
+      std::perror(json_path.c_str());
+      return 1;
+    }
+    std::fprintf(f, "{\n \"threads\": %u,\n \"sizes\": [\n", cores);
+    for (std::size_t i = 0; i < results.size(); ++i) {
+      const SizeResult& s = results[i];
+      std::fprintf(
+          f,
+          "  {\"width\": %d, \"height\": %d, \"read_s\": %.6f, \"write_s\": %.6f, "
+          "\"write_aov_s\": %.6f, \"exr_mb\": %.3f,\n"
+          "   \"add_s\": [%.6f, %.6f], \"estimate_s\": [%.6f, %.6f], "
+          "\"denoise_only_s\": [%.6f, %.6f],\n"
+          "   \"update_s\": %.6f, \"peak_rss_bytes\": %.0f, \"state_bytes_per_pixel\": %.1f, "
+          "\"layout_bytes_per_pixel\": %.1f, \"cores_obtained\": [%.3f, %.3f],\n",
+          s.w, s.h, s.read_s, s.write_s, s.write_aov_s, s.exr_mb, s.add_s[0], s.add_s[1],
+          s.estimate_s[0], s.estimate_s[1], s.denoise_only_s[0], s.denoise_only_s[1], s.update_s,
+          s.peak_bytes, s.state_bpp, s.layout_bpp, s.cores_obtained[0], s.cores_obtained[1]);
+      print_json_stage(f, "analytic_1", s.an[0], false);
+      print_json_stage(f, "analytic_n", s.an[1], !s.have_mc);
+      if (s.have_mc) print_json_stage(f, "mc_n", s.mc, true);
+      std::fprintf(f, "  }%s\n", i + 1 < results.size() ? "," : "");
+    }
+    auto num = [](double v) { return std::isfinite(v) ? std::to_string(v) : std::string("null"); };
+    std::fprintf(f,
+                 " ],\n \"sgemm\": {\"n\": %d, \"gflops_1\": %.3f, \"gflops_n\": %.3f, \"how\": "
+                 "\"%s\"},\n",
+                 gemm_n, gf1, gfN, how.c_str());
+    std::fprintf(
+        f,
+        " \"ratios\": {\"update_over_cycles_spp\": %s, \"cycles_spp_seconds\": %s, "
+        "\"sure_over_denoise_analytic\": %s, \"sure_stage_over_denoise_analytic\": %s, "
+        "\"sure_over_denoise_mc\": %s, \"mixer_over_sgemm\": null, "
+        "\"threads_speedup\": %s, \"k4_over_1080p\": %s, \"k4_over_1080p_1thread\": %s}\n}\n",
+        num(upd_ratio).c_str(), num(cycles_spp_s > 0 ? cycles_spp_s : NAN).c_str(),
+        num(sure_an).c_str(), num(sure_an_stage).c_str(), num(sure_mc).c_str(),
+        num(thr_ratio).c_str(), num(k4).c_str(), num(k4_1).c_str());
+    std::fclose(f);
+  }
   return 0;
 }

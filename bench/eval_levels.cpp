@@ -4,7 +4,14 @@
 //
 // Layouts: DIR/spp<L>/pass_*.exr with DIR/reference/pass_*.exr (bench/render_eval_set.sh), or
 // DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level.
+//
+// Also per level: the pipeline's own error estimates (no reference): mean Var[x] for the render,
+// mean SURE for the denoised image, and for the result (1 - a)^2 Var[x] + a^2 max(SURE, 0) (what
+// the daemon reports, service/daemon/processor.cpp), and the wall time of a denoise-only run (the
+// NL-means filter alone, same tiles and threads, no Jacobian) for the "denoise-only" curve.
+#include <tbb/blocked_range2d.h>
 #include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
 #include <CLI/CLI.hpp>
 #include <nlohmann/json.hpp>
 
@@ -15,6 +22,7 @@
 #include <iostream>
 #include <map>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -56,6 +64,59 @@ double mean_of(const Image& img) {
   return s / static_cast<double>(img.data().size());
 }
 
+// Daemon's estimate of the result's MSE: (1 - a)^2 Var[x] + a^2 max(SURE, 0), per pixel/channel.
+double estimated_result_mse(const Image& var, const Image& alpha, const Image& sure) {
+  const auto v = var.data();
+  const auto a = alpha.data();
+  const auto s = sure.data();
+  double sum = 0;
+  for (std::size_t i = 0; i < v.size() && i < a.size() && i < s.size(); ++i) {
+    const double al = a[i];
+    sum += (1.0 - al) * (1.0 - al) * v[i] + al * al * std::max(0.0f, s[i]);
+  }
+  return v.empty() ? 0.0 : sum / static_cast<double>(v.size());
+}
+
+// Wall seconds of the denoiser alone (NL-means, no derivative) over the frame in tiles.
+double denoise_only_seconds(const FrameEstimate& est, const PipelineOptions& po, Image* out) {
+  NlMeansParams p = po.nlmeans;
+  p.use_features = p.use_features && po.features;
+  const NlMeansDenoiser nl(p);
+  DenoiseInputs din;
+  din.width = est.mean.width();
+  din.height = est.mean.height();
+  din.colour = view_of(est.mean);
+  din.variance = view_of(est.variance);
+  if (p.use_features) {
+    din.albedo = view_of(est.albedo);
+    din.normal = view_of(est.normal);
+    din.depth = view_of(est.depth);
+    din.albedo_variance = view_of(est.albedo_variance);
+    din.normal_variance = view_of(est.normal_variance);
+    din.depth_variance = view_of(est.depth_variance);
+  }
+  Image y(din.width, din.height, 3);
+  const int tile = std::max(1, po.tile);
+  const auto t0 = std::chrono::steady_clock::now();
+  tbb::parallel_for(tbb::blocked_range2d<int>(0, (din.height + tile - 1) / tile, 1, 0,
+                                              (din.width + tile - 1) / tile, 1),
+                    [&](const tbb::blocked_range2d<int>& r) {
+                      for (int ty = r.rows().begin(); ty < r.rows().end(); ++ty) {
+                        for (int tx = r.cols().begin(); tx < r.cols().end(); ++tx) {
+                          const Rect rect{tx * tile, ty * tile,
+                                          std::min(din.width, (tx + 1) * tile),
+                                          std::min(din.height, (ty + 1) * tile)};
+                          Buffer b(rect, 3);
+                          nl.denoise(din, rect, b, nullptr);
+                          store(b, rect, y);
+                        }
+                      }
+                    });
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (out) *out = std::move(y);
+  return s;
+}
+
 json metrics_json(const Image& img, const Image& ref, double ref_var) {
   const ErrorMetrics m = compute_metrics(img, ref);
   return {{"rmse", m.rmse},
@@ -81,8 +142,9 @@ int main(int argc, char** argv) {
   app.add_flag("--no-features", no_features, "Colour only");
   app.add_option("--threads", threads, "Threads (0 = all)");
   app.add_option("--mixer-radius", po.mixer.radius);
+  app.add_option("--pool", po.variance_pool_radius);
   app.add_option("--variance-floor", po.mixer.variance_floor);
-  std::string weight = "variance";
+  std::string weight = "relative";  // the library default (ClosedFormParams)
   app.add_option("--mixer-weight", weight)
       ->check(CLI::IsMember({"uniform", "variance", "relative"}));
   std::string den = "nlmeans";
@@ -158,6 +220,12 @@ int main(int argc, char** argv) {
     const auto t1 = std::chrono::steady_clock::now();
     const PipelineResult r = run_pipeline(est, po);
     const double acc_s = std::chrono::duration<double>(t1 - t0).count();
+    const double den_only_s =
+        po.denoiser == BuiltinDenoiser::nlmeans
+            ? denoise_only_seconds(est, po, nullptr)
+            : r.timings.wall * r.timings.denoise /
+                  std::max(1e-12, r.timings.denoise + r.timings.sure + r.timings.mixer +
+                                      r.timings.ttest + r.timings.compose);
     json row = {
         {"scene", fs::path(dir).filename().string()},
         {"spp", f.total_spp()},
@@ -169,9 +237,13 @@ int main(int argc, char** argv) {
         {"result", metrics_json(r.result, ref_est.mean, ref_var)},
         {"estimated_mse_render", mean_of(est.variance)},
         {"estimated_mse_denoised", mean_of(r.sure)},
+        {"estimated_mse_result", estimated_result_mse(est.variance, r.alpha, r.sure)},
+        {"reference_mean_variance", ref_var},
         {"seconds",
          {{"read_accumulate", acc_s},
           {"pipeline_wall", r.timings.wall},
+          {"update", acc_s + r.timings.wall},
+          {"denoise_only_wall", den_only_s},
           {"denoise_cpu", r.timings.denoise},
           {"sure_cpu", r.timings.sure},
           {"mixer_cpu", r.timings.mixer},
@@ -186,7 +258,7 @@ int main(int argc, char** argv) {
                     m["rmse"].get<double>(), m["relmse"].get<double>(), m["smape"].get<double>(),
                     std::string(k) == "render"     ? row["estimated_mse_render"].get<double>()
                     : std::string(k) == "denoised" ? row["estimated_mse_denoised"].get<double>()
-                                                   : 0.0,
+                                                   : row["estimated_mse_result"].get<double>(),
                     r.timings.wall);
       }
     }

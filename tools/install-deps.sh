@@ -10,6 +10,7 @@ packages=(
   libboost-dev libboost-system-dev
   nlohmann-json3-dev libspdlog-dev libfmt-dev catch2 libcli11-dev libtbb-dev
   python3 curl                                              # service tests, make run
+  libbenchmark-dev libopenblas-dev python3-matplotlib       # make bench (micro, sgemm, plots)
   "$@"
 )
 

@@ -1,0 +1,80 @@
+#!/usr/bin/python3
+"""CI check of the benchmark harness on tiny inputs (ctest -L bench): fails if a tool breaks.
+
+  bench/check_harness.py BIN_DIR SAMPLES_DIR
+"""
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+
+
+def fail(msg):
+    print("check_harness: FAIL:", msg, file=sys.stderr)
+    sys.exit(1)
+
+
+def finite(v):
+    return isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def main():
+    if len(sys.argv) != 3:
+        fail("usage: check_harness.py BIN_DIR SAMPLES_DIR")
+    bindir, samples = sys.argv[1], sys.argv[2]
+    with tempfile.TemporaryDirectory() as d:
+        js = os.path.join(d, "perf.json")
+        out = subprocess.run([os.path.join(bindir, "proden_bench_pipeline"), "--width", "64",
+                              "--height", "48", "--no-mc", "--no-4k", "--cycles-spp-seconds", "1",
+                              "--json", js, "--tmp", d], capture_output=True, text=True)
+        print(out.stdout)
+        if out.returncode != 0:
+            fail(f"proden_bench_pipeline exit {out.returncode}: {out.stderr}")
+        p = json.load(open(js))
+        s = p["sizes"][0]
+        if (s["width"], s["height"]) != (64, 48):
+            fail("size")
+        for k in ("read_s", "write_s", "update_s", "peak_rss_bytes"):
+            if not (finite(s[k]) and s[k] > 0):
+                fail(f"sizes[0].{k} = {s[k]}")
+        if s["state_bytes_per_pixel"] != s["layout_bytes_per_pixel"] or s["state_bytes_per_pixel"] < 120:
+            fail("bytes per pixel")
+        for k in ("denoise", "mixer", "ttest", "wall"):
+            if not (s["analytic_1"][k] > 0 and s["analytic_n"][k] > 0):
+                fail(f"stage {k}")
+        r = p["ratios"]
+        for k in ("update_over_cycles_spp", "sure_over_denoise_analytic", "threads_speedup"):
+            if not finite(r[k]):
+                fail(f"ratio {k} = {r[k]}")
+        if not p["sgemm"]["gflops_1"] > 0:
+            fail("sgemm")
+    out = subprocess.run([os.path.join(bindir, "proden_eval_levels"), "--scene",
+                          os.path.join(samples, "renders", "cornell"), "--json"],
+                         capture_output=True, text=True)
+    if out.returncode != 0:
+        fail(f"proden_eval_levels exit {out.returncode}: {out.stderr}")
+    rows = [json.loads(l) for l in out.stdout.splitlines() if l.strip()]
+    if len(rows) != 1:
+        fail(f"{len(rows)} rows")
+    row = rows[0]
+    print(json.dumps(row))
+    for k in ("render", "denoised", "result"):
+        for m in ("rmse", "relmse", "smape", "mse_corrected"):
+            if not finite(row[k][m]):
+                fail(f"{k}.{m}")
+    for k in ("estimated_mse_render", "estimated_mse_denoised", "estimated_mse_result"):
+        if not (finite(row[k]) and row[k] > 0):
+            fail(k)
+    for k in ("read_accumulate", "pipeline_wall", "denoise_only_wall", "update"):
+        if not (finite(row["seconds"][k]) and row["seconds"][k] > 0):
+            fail(f"seconds.{k}")
+    # On the bundled cornell passes (8 x 4 spp) the pipeline lowers relMSE several-fold.
+    if not row["result"]["relmse"] < row["render"]["relmse"]:
+        fail("result relMSE not below the render's")
+    print("check_harness: ok")
+
+
+if __name__ == "__main__":
+    main()

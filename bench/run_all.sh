@@ -1,0 +1,83 @@
+#!/usr/bin/env bash
+# Regenerates every benchmark result and bench/RESULTS.md (what `make bench` runs after building).
+#
+#   bench/run_all.sh
+#
+# Environment:
+#   BUILD_DIR    build tree with bench/proden_* (default build-bench)
+#   EVALDATA     evaluation sets, outside the repo (default /work/evaldata); missing levels and
+#                references are rendered with bench/render_eval_set.sh (slow on a fresh machine:
+#                ~10 min of Cycles per scene at 256x256 plus ~10 min per reference)
+#   SCENES       default "cornell textured_dof glass interior"
+#   LEVELS       default "4 8 16 32 64 128 256 512 1024"
+#   RES          eval-set resolution (default 256)
+#   BLENDER, BLENDER_LOCK   passed to render_eval_set.sh (BLENDER_LOCK=FILE: one Blender at a time)
+#   SKIP_RENDER=1    use the eval sets as they are
+#   SKIP_ACCURACY=1  keep bench/results/accuracy* (REUSE_ACCURACY=1: re-plot from the .jsonl)
+#   SKIP_PERF=1      keep bench/results/perf.* and micro.*   PERF_ARGS: extra bench_pipeline args
+set -euo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$ROOT"
+BUILD_DIR=${BUILD_DIR:-build-bench}
+BIN=$BUILD_DIR/bench
+EVALDATA=${EVALDATA:-/work/evaldata}
+SCENES=${SCENES:-cornell textured_dof glass interior}
+LEVELS=${LEVELS:-4 8 16 32 64 128 256 512 1024}
+RES=${RES:-256}
+OUT=bench/results
+PY=/usr/bin/python3
+BLENDER=${BLENDER:-blender}
+mkdir -p "$OUT"
+lock=()
+[[ -n ${BLENDER_LOCK:-} ]] && lock=(flock "$BLENDER_LOCK")
+
+if [[ ${SKIP_RENDER:-0} != 1 ]]; then
+  for s in $SCENES; do
+    echo "== eval set $s ($EVALDATA/$s)"
+    LEVELS="$LEVELS" bench/render_eval_set.sh "$s" "$EVALDATA/$s" "$RES" | { grep -v '^keep' || true; }
+  done
+fi
+
+if [[ ${SKIP_ACCURACY:-0} != 1 ]]; then
+  reuse=()
+  [[ ${REUSE_ACCURACY:-0} == 1 ]] && reuse=(--reuse)
+  echo "== accuracy versus time"
+  $PY bench/accuracy.py --bin "$BIN" --evaldata "$EVALDATA" --out "$OUT" \
+      --scenes "$(tr ' ' ',' <<<"$SCENES")" "${reuse[@]}" > /dev/null
+fi
+
+header_seconds() { # EXR -> Blender render_time in seconds
+  oiiotool --info -v "$1" | sed -n 's/^ *cycles\.ViewLayer\.render_time: *"\(.*\)".*/\1/p' | head -n1 |
+    awk -F: '{ s = 0; for (i = 1; i <= NF; i++) s = s * 60 + $i; printf "%.2f", s }'
+}
+
+if [[ ${SKIP_PERF:-0} != 1 ]]; then
+  # One more Cycles sample per pixel of a 1920x1080 frame (cornell), right before the pipeline
+  # timing: render_time(4 spp) - render_time(1 spp), over 3. Blender's render_time excludes
+  # start-up, sync and BVH build.
+  echo "== Cycles cost of one more spp at 1920x1080"
+  tmp=$(mktemp -d)
+  trap 'rm -rf "$tmp"' EXIT
+  for spp in 1 4; do
+    PRODEN_SCENE=cornell PRODEN_W=1920 PRODEN_H=1080 "${lock[@]}" "$BLENDER" -b --factory-startup \
+      -noaudio -P bench/cycles_frame.py -- --seed $((spp + 7)) --spp $spp --res 1920 \
+      --out "$tmp/c$spp.exr" > "$tmp/blender$spp.log" 2>&1 \
+      || { cat "$tmp/blender$spp.log" >&2; exit 1; }
+  done
+  t1=$(header_seconds "$tmp/c1.exr")
+  t4=$(header_seconds "$tmp/c4.exr")
+  one=$(awk -v a="$t1" -v b="$t4" 'BEGIN { printf "%.4f", (b - a) / 3 }')
+  printf '{"scene": "cornell", "width": 1920, "height": 1080, "render_time_1spp": %s, "render_time_4spp": %s, "one_more_spp_seconds": %s}\n' \
+    "$t1" "$t4" "$one" > "$OUT/cycles_1080p.json"
+  echo "   1 spp $t1 s, 4 spp $t4 s -> one more spp $one s"
+  echo "== pipeline harness (1080p, 4K; 1 and $(nproc) threads)"
+  "$BIN/proden_bench_pipeline" --cycles-spp-seconds "$one" --json "$OUT/perf.json" \
+      ${PERF_ARGS:-} | tee "$OUT/perf.txt"
+  if [[ -x $BIN/proden_micro_kernels ]]; then
+    echo "== Google Benchmark microbenchmarks"
+    "$BIN/proden_micro_kernels" --benchmark_min_time=0.3 2>&1 | tee "$OUT/micro.txt"
+  fi
+fi
+
+echo "== bench/RESULTS.md"
+$PY bench/make_results.py
