@@ -243,7 +243,7 @@ int main(int argc, char** argv) {
 
   std::printf(
       "synthetic Cycles-like frames: HDR+ALB+NRM+DEP, %d passes x %.0f spp; default "
-      "pipeline (NL-means r=5 f=3, closed-form Stein mixer r=6, t-test, tile 128); "
+      "pipeline (NL-means r=5 f=3, closed-form Stein mixer r=12, t-test, tile 256); "
       "threads 1 and %u\n",
       npass, spp_per_pass, cores);
   for (const auto& [W, H] : sizes) {

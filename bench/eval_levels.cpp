@@ -143,6 +143,10 @@ int main(int argc, char** argv) {
   app.add_option("--threads", threads, "Threads (0 = all)");
   app.add_option("--mixer-radius", po.mixer.radius);
   app.add_option("--pool", po.variance_pool_radius);
+  app.add_option("--t0", po.ttest.t0);
+  bool no_dof = false;
+  app.add_flag("--no-ttest-dof", no_dof,
+               "The authors' fixed t0 (no degrees-of-freedom correction)");
   app.add_option("--variance-floor", po.mixer.variance_floor);
   std::string weight = "relative";  // the library default (ClosedFormParams)
   app.add_option("--mixer-weight", weight)
@@ -161,6 +165,7 @@ int main(int argc, char** argv) {
   app.add_flag("--no-ttest", no_ttest);
   CLI11_PARSE(app, argc, argv);
   po.t_test = !no_ttest;
+  po.ttest.dof_correction = !no_dof;
   po.features = !no_features;
   po.mixer.weight = weight == "uniform"    ? WindowWeight::uniform
                     : weight == "relative" ? WindowWeight::relative

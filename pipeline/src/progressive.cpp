@@ -179,6 +179,7 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
     const double t2 = thread_cpu();
 
     const View pooled = view_of(var_pooled);
+    const View passes = frame.passes.same_size(frame.mean) ? view_of(frame.passes) : View{};
     MixInputs mi{W, H, din.colour, y.view(), pooled, sure_buf.view(), div.view()};
     Buffer alpha(r_mix, 3);
     mixer.mix(mi, r_mix, alpha);
@@ -195,7 +196,8 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
           }
         }
       }
-      t_rescale(din.colour, pooled, z.view(), alpha.view(), W, H, tile, options.ttest, alpha_final);
+      t_rescale(din.colour, pooled, z.view(), alpha.view(), W, H, tile, options.ttest, alpha_final,
+                passes);
     } else {
       for (int c = 0; c < 3; ++c) {
         for (int py = tile.y0; py < tile.y1; ++py) {

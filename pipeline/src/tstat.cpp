@@ -80,14 +80,25 @@ double t_statistic(const View& x, const View& variance, const View& z, int width
   return statistic(ChannelSums(x, variance, z, r), width, height, px, py, params);
 }
 
+double t_threshold(const TTestParams& p, double passes) {
+  const double z = p.t0;
+  const double nu = passes - 1.0;
+  if (!p.dof_correction || nu < 1.0) return z;  // one pass: variance is a spatial guess
+  // Cornish-Fisher expansion of the Student-t quantile around the normal one.
+  const double z3 = z * z * z, z5 = z3 * z * z;
+  return z + (z3 + z) / (4.0 * nu) + (5.0 * z5 + 16.0 * z3 + 3.0 * z) / (96.0 * nu * nu);
+}
+
 void t_rescale(const View& x, const View& variance, const View& z, const View& alpha, int width,
-               int height, const Rect& out, const TTestParams& p, Buffer& rescaled) {
+               int height, const Rect& out, const TTestParams& p, Buffer& rescaled,
+               const View& passes) {
   const ChannelSums sums(x, variance, z, out.expanded(p.radius).intersect({0, 0, width, height}));
   for (int py = out.y0; py < out.y1; ++py) {
     for (int px = out.x0; px < out.x1; ++px) {
       const double t = statistic(sums, width, height, px, py, p);
       // 1 - Phi(u) = erfc(u / sqrt(2)) / 2
-      const double keep = 0.5 * std::erfc(p.slope * (t - p.t0) / std::sqrt(2.0));
+      const double t0 = passes.valid() ? t_threshold(p, passes.at(px, py, 0)) : p.t0;
+      const double keep = 0.5 * std::erfc(p.slope * (t - t0) / std::sqrt(2.0));
       for (int c = 0; c < 3; ++c) {
         rescaled.at(px, py, c) = static_cast<float>(alpha.at(px, py, c) * keep);
       }

@@ -71,6 +71,8 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"stein", "inverse-error"}))
       ->capture_default_str();
   d->add_flag("!--no-ttest", den.pipeline.t_test, "Skip the t-statistic rescale of alpha");
+  d->add_flag("!--no-ttest-dof", den.pipeline.ttest.dof_correction,
+              "The authors' fixed t-test threshold (no degrees-of-freedom correction)");
   d->add_option("--mixer-radius", den.pipeline.mixer.radius,
                 "Closed-form mixer: window radius of its smoothed estimates")
       ->check(CLI::Range(0, 16))

@@ -43,7 +43,7 @@ struct ClosedFormParams {
   ClosedFormRule rule = ClosedFormRule::stein;
   WindowWeight weight = WindowWeight::relative;
   float variance_floor = 1e-4f;  // variance weights: floor = variance_floor * (mean x^2 + 0.01)
-  int radius = 6;                // box window (2r+1)^2 that smooths the noisy per-pixel estimates
+  int radius = 12;               // box window (2r+1)^2 that smooths the noisy per-pixel estimates
 };
 
 class ClosedFormMixer final : public Mixer {

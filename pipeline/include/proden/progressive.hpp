@@ -36,7 +36,7 @@ struct PipelineOptions {
   int variance_pool_radius = 2;  // mixer and t-test read Var[x] averaged over (2r+1)^2
   bool t_test = true;
   TTestParams ttest;
-  int tile = 128;  // inner tile size in pixels
+  int tile = 256;  // inner tile size in pixels
 };
 
 // CPU seconds per stage (thread CPU time, summed over tiles: with N busy threads they add up to
