@@ -66,6 +66,17 @@ def flat_mesh(name, verts, faces, material=None, location=(0, 0, 0)):
     return obj
 
 
+def box(name, size, location, rot_z, mat):
+    """Flat-shaded axis box of `size` (x, y, z) centred at `location`, turned rot_z degrees."""
+    sx, sy, sz = (s / 2.0 for s in size)
+    v = [(-sx, -sy, -sz), (sx, -sy, -sz), (sx, sy, -sz), (-sx, sy, -sz),
+         (-sx, -sy, sz), (sx, -sy, sz), (sx, sy, sz), (-sx, sy, sz)]
+    f = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
+    obj = flat_mesh(name, v, f, mat, location)
+    obj.rotation_euler = (0, 0, math.radians(rot_z))
+    return obj
+
+
 def make_flat(obj):
     """Force flat shading on an object created by a bpy.ops primitive."""
     for poly in obj.data.polygons:

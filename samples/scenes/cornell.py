@@ -8,23 +8,12 @@ short block: mostly indirect light, so a few spp are very noisy.
         --seed S --spp N --res 128 --out PATH.exr [--half]
 """
 
-import math
 import os
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bpy  # noqa: E402
 import common  # noqa: E402
-
-
-def box(name, size, location, rot_z, mat):
-    sx, sy, sz = (s / 2.0 for s in size)
-    v = [(-sx, -sy, -sz), (sx, -sy, -sz), (sx, sy, -sz), (-sx, sy, -sz),
-         (-sx, -sy, sz), (sx, -sy, sz), (sx, sy, sz), (-sx, sy, sz)]
-    f = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
-    obj = common.flat_mesh(name, v, f, mat, location)
-    obj.rotation_euler = (0, 0, math.radians(rot_z))
-    return obj
 
 
 def build(scene, args):
@@ -48,8 +37,8 @@ def build(scene, args):
     for name, verts, mat in walls:
         common.flat_mesh(name, verts, [(0, 1, 2, 3)], mat)
 
-    box("tall_block", (0.55, 0.55, 1.2), (-0.35, 0.35, 0.6), 18.0, glossy)
-    box("short_block", (0.55, 0.55, 0.55), (0.4, -0.15, 0.275), -17.0, white)
+    common.box("tall_block", (0.55, 0.55, 1.2), (-0.35, 0.35, 0.6), 18.0, glossy)
+    common.box("short_block", (0.55, 0.55, 0.55), (0.4, -0.15, 0.275), -17.0, white)
 
     bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=0.3, location=(0.42, -0.15, 0.85))
     sphere = common.make_flat(bpy.context.active_object)

@@ -37,16 +37,6 @@ def glass_material(name, ior, color=(1.0, 1.0, 1.0), roughness=0.0):
     return mat
 
 
-def box(name, size, location, rot_z, mat):
-    sx, sy, sz = (s / 2.0 for s in size)
-    v = [(-sx, -sy, -sz), (sx, -sy, -sz), (sx, sy, -sz), (-sx, sy, -sz),
-         (-sx, -sy, sz), (sx, -sy, sz), (sx, sy, sz), (-sx, sy, sz)]
-    f = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
-    obj = common.flat_mesh(name, v, f, mat, location)
-    obj.rotation_euler = (0, 0, math.radians(rot_z))
-    return obj
-
-
 def cylinder(name, radius, z0, z1, n, mat, location):
     """Closed n-gon prism (flat-shaded), normals outwards."""
     v = []
@@ -79,7 +69,7 @@ def build(scene, args):
     sph.name = "glass_sphere"
     sph.data.materials.append(glass)
 
-    box("glass_box", (0.55, 0.55, 0.7), (0.55, 0.55, 0.35), 35.0, glass_box_mat)
+    common.box("glass_box", (0.55, 0.55, 0.7), (0.55, 0.55, 0.35), 35.0, glass_box_mat)
 
     # "Glass of liquid": a solid glass prism with a tinted, lower-IOR liquid prism inside
     # (nested surfaces, not physically exact interfaces, but refractive and coloured).

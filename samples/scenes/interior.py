@@ -21,16 +21,6 @@ import bpy  # noqa: E402
 import common  # noqa: E402
 
 
-def box(name, size, location, rot_z, mat):
-    sx, sy, sz = (s / 2.0 for s in size)
-    v = [(-sx, -sy, -sz), (sx, -sy, -sz), (sx, sy, -sz), (-sx, sy, -sz),
-         (-sx, -sy, sz), (sx, -sy, sz), (sx, sy, sz), (-sx, sy, sz)]
-    f = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7)]
-    obj = common.flat_mesh(name, v, f, mat, location)
-    obj.rotation_euler = (0, 0, math.radians(rot_z))
-    return obj
-
-
 def cylinder(name, radius, height, n, mat, location):
     v = []
     for z in (0.0, height):
@@ -71,10 +61,10 @@ def build(scene, args):
 
     # Table: top + 4 legs.
     tx, ty = 0.3, 0.8
-    box("table_top", (1.4, 0.8, 0.05), (tx, ty, 0.75), 10.0, table_mat)
+    common.box("table_top", (1.4, 0.8, 0.05), (tx, ty, 0.75), 10.0, table_mat)
     for i, (dx, dy) in enumerate([(-0.6, -0.32), (0.6, -0.32), (0.6, 0.32), (-0.6, 0.32)]):
         c, s = math.cos(math.radians(10.0)), math.sin(math.radians(10.0))
-        box("table_leg%d" % i, (0.06, 0.06, 0.73), (tx + c * dx - s * dy, ty + s * dx + c * dy,
+        common.box("table_leg%d" % i, (0.06, 0.06, 0.73), (tx + c * dx - s * dy, ty + s * dx + c * dy,
                                                      0.365), 10.0, table_mat)
 
     bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=0.18,
@@ -85,9 +75,9 @@ def build(scene, args):
     cylinder("metal_can", 0.1, 0.35, 24, metal, (tx + 0.35, ty + 0.1, 0.775))
 
     # Sofa-like block (seat + back) against the left wall, bookcase against the far wall.
-    box("sofa_seat", (0.9, 2.0, 0.45), (-2.0, 0.6, 0.225), 0.0, sofa_mat)
-    box("sofa_back", (0.25, 2.0, 0.5), (-2.33, 0.6, 0.7), 0.0, sofa_mat)
-    box("bookcase", (1.4, 0.4, 2.0), (1.3, 2.75, 1.0), 0.0, shelf_mat)
+    common.box("sofa_seat", (0.9, 2.0, 0.45), (-2.0, 0.6, 0.225), 0.0, sofa_mat)
+    common.box("sofa_back", (0.25, 2.0, 0.5), (-2.33, 0.6, 0.7), 0.0, sofa_mat)
+    common.box("bookcase", (1.4, 0.4, 2.0), (1.3, 2.75, 1.0), 0.0, shelf_mat)
     bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=0.35, location=(1.5, -0.3, 0.35))
     ball = common.make_flat(bpy.context.active_object)
     ball.name = "metal_ball"
