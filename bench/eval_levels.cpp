@@ -6,7 +6,7 @@
 // DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level.
 //
 // Also per level: the pipeline's own error estimates (no reference): mean Var[x] for the render,
-// mean SURE for the denoised image, and for the result (1 - a)^2 Var[x] + a^2 max(SURE, 0) (what
+// mean SURE for the denoised image, and for the result proden::estimated_result_mse (what
 // the daemon reports, service/daemon/processor.cpp), and the wall time of a denoise-only run (the
 // NL-means filter alone, same tiles and threads, no Jacobian) for the "denoise-only" curve.
 #include <tbb/blocked_range2d.h>
@@ -62,19 +62,6 @@ double mean_of(const Image& img) {
   double s = 0;
   for (float v : img.data()) s += v;
   return s / static_cast<double>(img.data().size());
-}
-
-// Daemon's estimate of the result's MSE: (1 - a)^2 Var[x] + a^2 max(SURE, 0), per pixel/channel.
-double estimated_result_mse(const Image& var, const Image& alpha, const Image& sure) {
-  const auto v = var.data();
-  const auto a = alpha.data();
-  const auto s = sure.data();
-  double sum = 0;
-  for (std::size_t i = 0; i < v.size() && i < a.size() && i < s.size(); ++i) {
-    const double al = a[i];
-    sum += (1.0 - al) * (1.0 - al) * v[i] + al * al * std::max(0.0f, s[i]);
-  }
-  return v.empty() ? 0.0 : sum / static_cast<double>(v.size());
 }
 
 // Wall seconds of the denoiser alone (NL-means, no derivative) over the frame in tiles.
@@ -242,7 +229,7 @@ int main(int argc, char** argv) {
         {"result", metrics_json(r.result, ref_est.mean, ref_var)},
         {"estimated_mse_render", mean_of(est.variance)},
         {"estimated_mse_denoised", mean_of(r.sure)},
-        {"estimated_mse_result", estimated_result_mse(est.variance, r.alpha, r.sure)},
+        {"estimated_mse_result", estimated_result_mse(est.mean, est.variance, r)},
         {"reference_mean_variance", ref_var},
         {"seconds",
          {{"read_accumulate", acc_s},

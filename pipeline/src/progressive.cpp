@@ -88,6 +88,23 @@ DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, co
   return din;
 }
 
+double estimated_result_mse(const Image& x, const Image& variance, const PipelineResult& r) {
+  const auto xv = x.data(), vv = variance.data(), yv = r.denoised.data(), av = r.alpha.data(),
+             sv = r.sure.data();
+  const std::size_t n = std::min({xv.size(), vv.size(), yv.size(), av.size(), sv.size()});
+  if (n == 0) return 0.0;
+  double sum = 0.0, floor = 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double a = av[i], d = static_cast<double>(yv[i]) - xv[i];
+    sum += (1.0 - a) * vv[i] + a * sv[i] - a * (1.0 - a) * d * d;
+    floor += (1.0 - a) * (1.0 - a) * vv[i];
+  }
+  // Per-pixel clamping would bias the mean up (interior: 4-5x); the unclamped mean can go below
+  // what the render's share alone contributes when SURE is biased low (noisy features correlated
+  // with x's noise), so it is floored there: MSE(z) >= (1-a)^2 var when div >= 0.
+  return std::max(sum, floor) / static_cast<double>(n);
+}
+
 int pipeline_halo(const Denoiser& denoiser, const Mixer& mixer, const PipelineOptions& options) {
   return denoiser.radius() + mixer.radius() + (options.t_test ? options.ttest.radius : 0);
 }

@@ -42,16 +42,8 @@ ProcessedFrame FrameProcessor::process(const FrameEstimate& estimate,
   PipelineOptions options;
   if (spec.mixer == "inverse-error") options.mixer.rule = ClosedFormRule::inverse_error;
   PipelineResult r = run_pipeline(estimate, options);
-  // Error of z = x + a (y - x) per pixel, from the pipeline's own estimates:
-  // (1 - a)^2 Var[x] + a^2 SURE(y), ignoring the covariance of x and y.
-  const auto a = r.alpha.data();
-  const auto sure = r.sure.data();
-  double sum = 0.0;
-  for (std::size_t i = 0; i < var.size() && i < a.size() && i < sure.size(); ++i) {
-    const double al = a[i];
-    sum += (1.0 - al) * (1.0 - al) * var[i] + al * al * std::max(0.0f, sure[i]);
-  }
-  out.estimated_mse = var.empty() ? 0.0 : sum / static_cast<double>(var.size());
+  // Error of z = x + a (y - x) from the pipeline's own estimates (SURE of z).
+  out.estimated_mse = estimated_result_mse(estimate.mean, estimate.variance, r);
   out.estimated_mse_source = "variance+sure";
   out.stage_seconds = {{"denoise", r.timings.denoise}, {"sure", r.timings.sure},
                        {"mix", r.timings.mixer},       {"ttest", r.timings.ttest},

@@ -308,3 +308,31 @@ TEST_CASE("t-test threshold: Student-t correction for few passes, the authors' t
             view_of(passes_many));
   CHECK(a_many.at(10, 10, 0) < 0.01f);
 }
+
+TEST_CASE("the result's estimated MSE matches its true MSE on known truth", "[pipeline][sure]") {
+  const Image truth = truth_image(160, 160);  // borders (approximate derivative) stay a small share
+  const FrameEstimate f = noisy(truth, 0.05f, 29);
+  PipelineOptions o;
+  o.nlmeans.search_radius = 4;
+  o.nlmeans.patch_radius = 2;
+  o.nlmeans.use_features = false;
+  const PipelineResult r = run_pipeline(f, o);
+  double se = 0;
+  for (std::size_t i = 0; i < truth.data().size(); ++i) {
+    const double e = r.result.data()[i] - truth.data()[i];
+    se += e * e;
+  }
+  const double true_mse = se / static_cast<double>(truth.data().size());
+  const double est = estimated_result_mse(f.mean, f.variance, r);
+  INFO("estimated " << est << " true " << true_mse);
+  CHECK(est == Approx(true_mse).epsilon(0.15));
+  // The formula it replaced, (1-a)^2 var + a^2 max(SURE, 0), misses the x-y covariance.
+  double old = 0;
+  for (std::size_t i = 0; i < truth.data().size(); ++i) {
+    const double a = r.alpha.data()[i];
+    old += (1 - a) * (1 - a) * f.variance.data()[i] + a * a * std::max(0.0f, r.sure.data()[i]);
+  }
+  old /= static_cast<double>(truth.data().size());
+  INFO("old estimate " << old);
+  CHECK(std::abs(est - true_mse) < std::abs(old - true_mse));
+}

@@ -63,6 +63,13 @@ struct PipelineResult {
 DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, const Image& variance,
                              bool features);
 
+// Mean squared error of the result z = x + alpha (y - x) estimated from the pipeline's own
+// numbers, no reference: SURE of z with alpha held fixed, per pixel and channel
+// (1 - a) var + a SURE(y) - a (1 - a) (y - x)^2 (it keeps the x-y covariance, div, that
+// (1-a)^2 var + a^2 SURE drops), averaged without per-pixel clamping; the frame mean is floored
+// at mean (1-a)^2 var (MSE(z) >= that when div >= 0).
+double estimated_result_mse(const Image& x, const Image& variance, const PipelineResult& r);
+
 // Halo the tiles need for these stages.
 int pipeline_halo(const Denoiser& denoiser, const Mixer& mixer, const PipelineOptions& options);
 
