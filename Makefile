@@ -49,6 +49,7 @@ run-cli: build
 	@echo "outputs in $(OUT_DIR)/"
 
 bench: deps
+	@tools/install-deps.sh blender   # renders the evaluation sets it lacks
 	cmake -S . -B $(BENCH_DIR) -DCMAKE_BUILD_TYPE=Release -DPRODEN_WERROR=$(WERROR)
 	cmake --build $(BENCH_DIR) -j $(JOBS) --target proden_eval_levels proden_bench_pipeline \
 	    proden_micro_kernels
