@@ -97,17 +97,7 @@ Pass synthetic_pass(int w, int h, int k, double spp) {
 // The denoiser alone (no Jacobian), tiled and parallel like the pipeline: "one denoiser run".
 double denoise_only(const FrameEstimate& est, const PipelineOptions& po) {
   const NlMeansDenoiser nl(po.nlmeans);
-  DenoiseInputs din;
-  din.width = est.mean.width();
-  din.height = est.mean.height();
-  din.colour = view_of(est.mean);
-  din.variance = view_of(est.variance);
-  din.albedo = view_of(est.albedo);
-  din.normal = view_of(est.normal);
-  din.depth = view_of(est.depth);
-  din.albedo_variance = view_of(est.albedo_variance);
-  din.normal_variance = view_of(est.normal_variance);
-  din.depth_variance = view_of(est.depth_variance);
+  const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
   Image y(din.width, din.height, 3);
   const int t = po.tile;
   const auto t0 = Clock::now();

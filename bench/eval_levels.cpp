@@ -69,19 +69,7 @@ double denoise_only_seconds(const FrameEstimate& est, const PipelineOptions& po,
   NlMeansParams p = po.nlmeans;
   p.use_features = p.use_features && po.features;
   const NlMeansDenoiser nl(p);
-  DenoiseInputs din;
-  din.width = est.mean.width();
-  din.height = est.mean.height();
-  din.colour = view_of(est.mean);
-  din.variance = view_of(est.variance);
-  if (p.use_features) {
-    din.albedo = view_of(est.albedo);
-    din.normal = view_of(est.normal);
-    din.depth = view_of(est.depth);
-    din.albedo_variance = view_of(est.albedo_variance);
-    din.normal_variance = view_of(est.normal_variance);
-    din.depth_variance = view_of(est.depth_variance);
-  }
+  const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, p.use_features);
   Image y(din.width, din.height, 3);
   const int tile = std::max(1, po.tile);
   const auto t0 = std::chrono::steady_clock::now();
