@@ -151,6 +151,7 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
   res.denoised = x;
   res.alpha = Image(W, H, 3, 0.0f);
   res.sure = Image(W, H, 3, 0.0f);
+  res.mix_variance = var_pooled;
 
   // Simulate only what the frame calls for: a noise-free frame has nothing to denoise.
   if (all_zero(var)) {

@@ -47,10 +47,11 @@ struct StageTimings {
 };
 
 struct PipelineResult {
-  Image result;    // z
-  Image denoised;  // y
-  Image alpha;     // alpha' (after the t-test, or the mixer's alpha with t_test off)
-  Image sure;      // SURE of y
+  Image result;        // z
+  Image denoised;      // y
+  Image alpha;         // alpha' (after the t-test, or the mixer's alpha with t_test off)
+  Image sure;          // SURE of y
+  Image mix_variance;  // Var[x] as the mixer and t-test read it (pooled over (2r+1)^2)
   StageTimings timings;
   std::string denoiser, mixer, divergence;
   Layout inputs;  // what the denoiser actually used
