@@ -4,7 +4,9 @@
 
 #include <chrono>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
+#include <iterator>
 
 #include "cli/progress.hpp"
 #include "proden/accumulator.hpp"
@@ -12,6 +14,7 @@
 #include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/metrics.hpp"
+#include "proden/network/builtin.hpp"
 #include "proden/protocol/json.hpp"
 
 #ifndef PRODEN_VERSION
@@ -71,11 +74,35 @@ Accumulated accumulate(const std::vector<std::string>& files, const InputOptions
   return a;
 }
 
+std::shared_ptr<const network::PdNet> load_network(const std::string& path) {
+  if (path.empty()) return network::builtin_network();
+  std::ifstream f(path, std::ios::binary);
+  if (!f) throw network::WeightsError(path + ": cannot be opened");
+  const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(f)),
+                                         std::istreambuf_iterator<char>());
+  return std::make_shared<const network::PdNet>(network::parse_weights(bytes, path), path);
+}
+
 }  // namespace
 
 int run_denoise(const DenoiseOptions& o) {
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
+  std::unique_ptr<Mixer> mixer;
+  std::string weights_source;
+  if (o.mixer == "network") {
+    try {
+      auto net = load_network(o.weights);
+      weights_source = net->source();
+      mixer = std::make_unique<network::NetworkMixer>(std::move(net));
+    } catch (const network::WeightsError& e) {
+      spdlog::error("--weights: {}", e.what());
+      return kUsage;
+    }
+  } else if (!o.weights.empty()) {
+    spdlog::error("--weights needs --mixer network");
+    return kUsage;
+  }
   Accumulated a = accumulate(o.passes, o.input, "accumulate", o.progress);
   if (a.frame.empty()) {
     spdlog::error("no usable pass among {} file(s); nothing written", o.passes.size());
@@ -84,7 +111,7 @@ int run_denoise(const DenoiseOptions& o) {
   const auto t1 = Clock::now();
   const FrameEstimate est =
       a.frame.estimate({.halves = false, .features = o.input.features && o.pipeline.features});
-  const PipelineResult res = run_pipeline(est, o.pipeline);
+  const PipelineResult res = run_pipeline(est, o.pipeline, nullptr, mixer.get());
   const auto t2 = Clock::now();
 
   // What the run actually used, in the paper's Table 1 terms (HDR, +VAR, +ALB+NRM).
@@ -98,6 +125,7 @@ int run_denoise(const DenoiseOptions& o) {
     io::add_layer(channels, "denoised.", res.denoised);
     io::add_layer(channels, "alpha.", res.alpha);
     io::add_layer(channels, "sure.", res.sure);
+    io::add_layer(channels, "mixvariance.", res.mix_variance);
   }
   io::WriteOptions w;
   w.half = o.half;
@@ -108,6 +136,7 @@ int run_denoise(const DenoiseOptions& o) {
       {"proden:inputs", used.to_string()},
       {"proden:denoiser", res.denoiser},
       {"proden:mixer", res.mixer},
+      {"proden:mixer_weights", weights_source.empty() ? "none" : weights_source},
       {"proden:divergence", res.divergence},
       {"proden:t_test", o.pipeline.t_test ? "on" : "off"},
       {"proden:variance_source", std::string(protocol::to_string(est.variance_source))},
@@ -145,6 +174,7 @@ int run_denoise(const DenoiseOptions& o) {
                      {"divergence", res.divergence}, {"t_test", o.pipeline.t_test},
                      {"tile", o.pipeline.tile},      {"halo", res.halo},
                      {"noise_free", res.noise_free}};
+    if (!weights_source.empty()) j["pipeline"]["weights"] = weights_source;
     if (o.timings) j["timings"] = timings;
     std::cout << j.dump(2) << "\n";
   } else {

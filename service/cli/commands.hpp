@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "proden/io/profile.hpp"
+#include "proden/network/builtin.hpp"
 #include "proden/progressive.hpp"
 
 namespace proden::cli {
@@ -27,6 +28,8 @@ struct InputOptions {
 struct DenoiseOptions {
   InputOptions input;
   PipelineOptions pipeline;
+  std::string mixer = network::kDefaultMixer;  // "network" or "closed-form"
+  std::string weights;                         // network weights file; empty = the built-in ones
   std::vector<std::string> passes;
   std::string out;
   bool aov = false;

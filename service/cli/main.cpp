@@ -46,7 +46,8 @@ int main(int argc, char** argv) {
   auto* d = app.add_subcommand("denoise", "Accumulate one frame's passes and write the result");
   add_input_options(d, den.input, renderer);
   d->add_option("--out", den.out, "Output EXR")->required();
-  d->add_flag("--aov", den.aov, "Also write render.*, variance.* (and later pipeline) layers");
+  d->add_flag("--aov", den.aov,
+              "Also write render, variance, denoised, alpha, sure and mixvariance layers");
   d->add_flag("--half", den.half, "Write 16-bit half floats instead of 32-bit");
   d->add_flag("--json", den.json, "Print a JSON summary of the frame on stdout");
   d->add_flag("-q,--quiet", quiet, "No progress display");
@@ -63,9 +64,13 @@ int main(int argc, char** argv) {
   d->add_option("--probes", den.pipeline.probes.count, "Monte-Carlo probes for --divergence mc")
       ->check(CLI::Range(1, 64))
       ->capture_default_str();
-  d->add_option("--mixer", mixer, "Mixing weights: closed-form")
-      ->check(CLI::IsMember({"closed-form"}))
+  mixer = network::kDefaultMixer;
+  d->add_option("--mixer", mixer,
+                "Mixing weights: network (the learned PDNet) or closed-form (Stein window rule)")
+      ->check(CLI::IsMember({"network", "closed-form"}))
       ->capture_default_str();
+  d->add_option("--weights", den.weights,
+                "Network weights file (.pdnw) instead of the built-in ones (--mixer network)");
   d->add_option("--closed-form-rule", rule,
                 "stein (MSE-optimal, accounts for y depending on x) or inverse-error")
       ->check(CLI::IsMember({"stein", "inverse-error"}))
@@ -125,6 +130,7 @@ int main(int argc, char** argv) {
   den.pipeline.divergence = divergence == "analytic" ? DivergenceMethod::analytic
                             : divergence == "mc"     ? DivergenceMethod::monte_carlo
                                                      : DivergenceMethod::automatic;
+  den.mixer = mixer;
   den.pipeline.mixer.rule =
       rule == "inverse-error" ? ClosedFormRule::inverse_error : ClosedFormRule::stein;
 

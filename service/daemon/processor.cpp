@@ -5,9 +5,12 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <memory>
 #include <stdexcept>
+#include <string_view>
 
 #include "proden/io/image_writer.hpp"
+#include "proden/network/builtin.hpp"
 #include "proden/progressive.hpp"
 
 namespace proden::daemon {
@@ -18,8 +21,8 @@ bool FrameProcessor::supports(const protocol::PipelineSpec& spec, std::string& w
     return false;
   }
   if (spec.mixer != "auto" && spec.mixer != "closed-form" && spec.mixer != "stein" &&
-      spec.mixer != "inverse-error") {
-    why = "pipeline.mixer: one of auto, closed-form (= stein), stein, inverse-error";
+      spec.mixer != "inverse-error" && spec.mixer != "network") {
+    why = "pipeline.mixer: one of auto, network, closed-form (= stein), stein, inverse-error";
     return false;
   }
   return true;
@@ -41,7 +44,13 @@ ProcessedFrame FrameProcessor::process(const FrameEstimate& estimate,
   }
   PipelineOptions options;
   if (spec.mixer == "inverse-error") options.mixer.rule = ClosedFormRule::inverse_error;
-  PipelineResult r = run_pipeline(estimate, options);
+  // "auto" is whichever mixer won on the validation scenes (network::kDefaultMixer).
+  const bool use_network =
+      spec.mixer == "network" ||
+      (spec.mixer == "auto" && std::string_view(network::kDefaultMixer) == "network");
+  std::unique_ptr<Mixer> mixer;
+  if (use_network) mixer = std::make_unique<network::NetworkMixer>(network::builtin_network());
+  PipelineResult r = run_pipeline(estimate, options, nullptr, mixer.get());
   // Error of z = x + a (y - x) from the pipeline's own estimates (SURE of z).
   out.estimated_mse = estimated_result_mse(estimate.mean, estimate.variance, r);
   out.estimated_mse_source = "variance+sure";

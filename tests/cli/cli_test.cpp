@@ -263,6 +263,51 @@ TEST_CASE("the pipeline's result beats the render and matches the better of rend
   }
 }
 
+TEST_CASE("denoise --mixer network runs the learned mixer on real Cycles passes", "[cli][real]") {
+  Scratch s;
+  for (const std::string set : {"cornell", "textured_dof"}) {
+    const std::string out = s.file(set + "_net.exr");
+    const Run d =
+        proden("denoise -q --aov --json --mixer network --out " + out + join(passes(set)), s);
+    REQUIRE(d.code == 0);
+    const auto summary = nlohmann::json::parse(d.out);
+    CHECK(summary["pipeline"]["mixer"].get<std::string>().rfind("network-w", 0) == 0);
+    CHECK(summary["pipeline"]["weights"] == "built-in pdnet.pdnw");
+    check_against_independent(set, out);  // alpha in [0, 1], result = blend, finite SURE
+    const Run r = proden("eval --json --layer render --layer denoised --layer result --ref " +
+                             sample("renders/" + set + "/reference.exr") + " " + out,
+                         s);
+    REQUIRE(r.code == 0);
+    const auto j = nlohmann::json::parse(r.out)["results"];
+    const double render = j[0]["relmse"], denoised = j[1]["relmse"], result = j[2]["relmse"];
+    INFO(set << ": relMSE render " << render << " denoised " << denoised << " result " << result);
+    CHECK(result < 0.8 * render);
+  }
+}
+
+TEST_CASE("denoise --weights: a corrupt or missing file is refused by name, exit 2", "[cli]") {
+  Scratch s;
+  const std::string bad = s.file("bad.pdnw");
+  {
+    std::ofstream f(bad, std::ios::binary);
+    const char head[] = {'P', 'D', 'N', 'W', 1, 0, 0, 0};  // valid magic and version
+    f.write(head, sizeof head);
+    f << "not really weights, long enough to reach the checksum";
+  }
+  const std::string out = s.file("o.exr");
+  const Run r = proden(
+      "denoise -q --mixer network --weights " + bad + " --out " + out + join(passes("cornell")), s);
+  CHECK(r.code == 2);
+  CHECK_THAT(r.err, Catch::Contains(bad));
+  CHECK_THAT(r.err, Catch::Contains("checksum"));
+  CHECK_FALSE(std::filesystem::exists(out));
+  const Run m = proden("denoise -q --mixer network --weights " + s.file("none.pdnw") + " --out " +
+                           out + join(passes("cornell")),
+                       s);
+  CHECK(m.code == 2);
+  CHECK_THAT(m.err, Catch::Contains("none.pdnw: cannot be opened"));
+}
+
 TEST_CASE("info reports renderer, size, channels and spp", "[cli][real]") {
   Scratch s;
   const Run r = proden("info --json " + sample("renders/cornell/pass_00.exr") + " " +

@@ -185,6 +185,29 @@ class ApiTest(unittest.TestCase):
         ups = os.path.join(self.d.state, "jobs", jid, "uploads", "12")
         wait_until(lambda: not [n for n in os.listdir(ups) if not n.startswith(".")], 10, what="uploads cleaned")
 
+    def test_network_mixer_job(self):
+        # The same two passes through a closed-form job and a learned-mixer job: both publish,
+        # and the published results differ (the network's alpha is really used).
+        results = {}
+        for mixer in ("closed-form", "network"):
+            jid = self.d.create_job("mix_" + mixer.replace("-", "_"), pipeline={"mixer": mixer})
+            for name, path in (("a", CORNELL[0]), ("b", CORNELL[1])):
+                with open(path, "rb") as f:
+                    s, b = self.d.json("PUT", "/api/v1/jobs/%s/frames/3/passes/%s" % (jid, name), f.read())
+                self.assertEqual(s, 202, b)
+            f = self.d.wait_passes(jid, 3, 2)
+            self.assertGreater(f["estimated_mse"], 0)
+            s, h, exr = self.d.request("GET", "/api/v1/jobs/%s/frames/3/image?format=exr" % jid)
+            self.assertEqual(s, 200)
+            results[mixer] = exr
+            s, h, png = self.d.request("GET", "/api/v1/jobs/%s/frames/3/image?format=png&layer=alpha" % jid)
+            self.assertEqual(s, 200)
+        self.assertNotEqual(results["closed-form"], results["network"])
+        s, b = self.d.json("POST", "/api/v1/jobs", {"name": "mbad", "output": {"dir": self.d.allowed},
+                                                   "pipeline": {"mixer": "neural"}})
+        self.assert_error(s, b, 400, "invalid_field")
+        self.assertIn("network", b["error"]["message"])
+
     def test_metrics_format(self):
         s, h, body = self.d.request("GET", "/metrics")
         self.assertEqual(s, 200)
