@@ -34,10 +34,7 @@
 #include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/progressive.hpp"
-
-#if defined(PRODEN_BENCH_OPENBLAS)
-#include <cblas.h>
-#endif
+#include "sgemm.hpp"
 
 using namespace proden;
 namespace fs = std::filesystem;
@@ -115,52 +112,6 @@ double denoise_only(const FrameEstimate& est, const PipelineOptions& po) {
         }
       });
   return since(t0);
-}
-
-// sgemm GFLOP/s on n x n matrices with `threads` threads.
-double sgemm_gflops(int n, int threads, std::string& how) {
-  std::vector<float> a(static_cast<std::size_t>(n) * n), b(a.size()), c(a.size(), 0.0f);
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
-  for (auto& v : a) v = u(rng);
-  for (auto& v : b) v = u(rng);
-  int reps = 0;
-  double secs = 0;
-#if defined(PRODEN_BENCH_OPENBLAS)
-  how = "OpenBLAS cblas_sgemm (Debian libopenblas0-pthread)";
-  openblas_set_num_threads(threads);
-  cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, n, n, n, 1.0f, a.data(), n, b.data(), n,
-              0.0f, c.data(), n);  // warm-up
-  const auto t0 = Clock::now();
-  while (secs < 1.0 || reps < 3) {
-    cblas_sgemm(CblasRowMajor, CblasNoTrans, CblasNoTrans, n, n, n, 1.0f, a.data(), n, b.data(), n,
-                0.0f, c.data(), n);
-    ++reps;
-    secs = since(t0);
-  }
-#else
-  how = "plain blocked C++ loop (no OpenBLAS found at configure time)";
-  tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
-                            static_cast<std::size_t>(threads));
-  const int bs = 64;
-  const auto t0 = Clock::now();
-  while (secs < 1.0 || reps < 1) {
-    std::fill(c.begin(), c.end(), 0.0f);
-    tbb::parallel_for(0, (n + bs - 1) / bs, [&](int bi) {
-      for (int kk = 0; kk < n; kk += bs)
-        for (int i = bi * bs; i < std::min(n, (bi + 1) * bs); ++i)
-          for (int k = kk; k < std::min(n, kk + bs); ++k) {
-            const float aik = a[static_cast<std::size_t>(i) * n + k];
-            float* ci = &c[static_cast<std::size_t>(i) * n];
-            const float* bk = &b[static_cast<std::size_t>(k) * n];
-            for (int j = 0; j < n; ++j) ci[j] += aik * bk[j];
-          }
-    });
-    ++reps;
-    secs = since(t0);
-  }
-#endif
-  return 2.0 * n * n * static_cast<double>(n) * reps / secs / 1e9;
 }
 
 struct SizeResult {
@@ -368,8 +319,8 @@ int main(int argc, char** argv) {
   const SizeResult& a = results.front();
   std::string how;
   const int gemm_n = a.w * a.h < 100000 ? 256 : 1024;
-  const double gf1 = sgemm_gflops(gemm_n, 1, how);
-  const double gfN = sgemm_gflops(gemm_n, static_cast<int>(cores), how);
+  const double gf1 = bench::sgemm_gflops(gemm_n, 1, how);
+  const double gfN = bench::sgemm_gflops(gemm_n, static_cast<int>(cores), how);
   const double sure_an =
       (a.an[0].denoise + a.an[0].sure - a.denoise_only_s[0]) / a.denoise_only_s[0];
   const double sure_an_stage = a.an[0].sure / a.denoise_only_s[0];

@@ -50,6 +50,23 @@ def main():
                 fail(f"ratio {k} = {r[k]}")
         if not p["sgemm"]["gflops_1"] > 0:
             fail("sgemm")
+    with tempfile.TemporaryDirectory() as d:
+        js = os.path.join(d, "network.json")
+        out = subprocess.run([os.path.join(bindir, "proden_bench_network"), "--size", "40x24",
+                              "--tile", "16", "--width", "8", "--threads", "2", "--json", js],
+                             capture_output=True, text=True)
+        print(out.stdout)
+        if out.returncode != 0:
+            fail(f"proden_bench_network exit {out.returncode}: {out.stderr}")
+        runs = json.load(open(js))["runs"]
+        if [r["threads"] for r in runs] != [1, 2] or any(r["width"] != 8 for r in runs):
+            fail(f"network runs {runs}")
+        for r in runs:
+            for k in ("seconds", "mp_per_s", "gflops_executed", "sgemm_gflops", "ratio"):
+                if not (finite(r[k]) and r[k] > 0):
+                    fail(f"network {k} = {r[k]}")
+            if not r["gflops_executed"] >= r["gflops_useful"]:
+                fail("executed flops must include the halos")
     out = subprocess.run([os.path.join(bindir, "proden_eval_levels"), "--scene",
                           os.path.join(samples, "renders", "cornell"), "--json"],
                          capture_output=True, text=True)

@@ -19,7 +19,9 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
+#include <iterator>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -29,6 +31,7 @@
 #include "proden/accumulator.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/metrics.hpp"
+#include "proden/network/builtin.hpp"
 #include "proden/progressive.hpp"
 
 namespace fs = std::filesystem;
@@ -138,7 +141,21 @@ int main(int argc, char** argv) {
   app.add_option("--tile", po.tile);
   bool no_ttest = false;
   app.add_flag("--no-ttest", no_ttest);
+  std::string mixer_kind = "closed-form", weights;
+  app.add_option("--mixer", mixer_kind)->check(CLI::IsMember({"closed-form", "network"}));
+  app.add_option("--weights", weights, "Network weights (.pdnw; default: built-in)");
   CLI11_PARSE(app, argc, argv);
+  std::unique_ptr<Mixer> mixer;
+  if (mixer_kind == "network") {
+    std::shared_ptr<const network::PdNet> net = network::builtin_network();
+    if (!weights.empty()) {
+      std::ifstream wf(weights, std::ios::binary);
+      const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(wf)),
+                                             std::istreambuf_iterator<char>());
+      net = std::make_shared<const network::PdNet>(network::parse_weights(bytes, weights), weights);
+    }
+    mixer = std::make_unique<network::NetworkMixer>(net);
+  }
   po.t_test = !no_ttest;
   po.ttest.dof_correction = !no_dof;
   po.features = !no_features;
@@ -198,7 +215,7 @@ int main(int argc, char** argv) {
     const FrameAccumulator f = accumulate(files, !no_features);
     const FrameEstimate est = f.estimate({.halves = false, .features = !no_features});
     const auto t1 = std::chrono::steady_clock::now();
-    const PipelineResult r = run_pipeline(est, po);
+    const PipelineResult r = run_pipeline(est, po, nullptr, mixer.get());
     const double acc_s = std::chrono::duration<double>(t1 - t0).count();
     const double den_only_s =
         po.denoiser == BuiltinDenoiser::nlmeans
@@ -210,6 +227,7 @@ int main(int argc, char** argv) {
         {"scene", fs::path(dir).filename().string()},
         {"spp", f.total_spp()},
         {"passes", f.passes()},
+        {"mixer", r.mixer},
         {"inputs",
          Layout{r.inputs.albedo, r.inputs.normal, r.inputs.depth, f.layout().variance}.to_string()},
         {"render", metrics_json(est.mean, ref_est.mean, ref_var)},

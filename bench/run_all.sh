@@ -73,6 +73,9 @@ if [[ ${SKIP_PERF:-0} != 1 ]]; then
   echo "== pipeline harness (1080p, 4K; 1 and $(nproc) threads)"
   "$BIN/proden_bench_pipeline" --cycles-spp-seconds "$one" --json "$OUT/perf.json" \
       ${PERF_ARGS:-} | tee "$OUT/perf.txt"
+  echo "== learned-mixer inference (1080p; widths 48 and 24 and the built-in weights)"
+  "$BIN/proden_bench_network" --width 48 --width 24 --weights training/weights/pdnet.pdnw \
+      --json "$OUT/network.json" | tee "$OUT/network.txt"
   if [[ -x $BIN/proden_micro_kernels ]]; then
     echo "== Google Benchmark microbenchmarks"
     "$BIN/proden_micro_kernels" --benchmark_min_time=0.3 2>&1 | tee "$OUT/micro.txt"

@@ -1,0 +1,208 @@
+// Learned-mixer inference speed: megapixels per second of NetworkMixer over a 1920x1080 frame in
+// the pipeline's tiles (256 px + halo 7), and the achieved GFLOP/s against this machine's sgemm
+// measured in the same run (target >= 70 %), for 1 and N threads and each network width.
+//
+//   proden_bench_network [--width W]... [--weights FILE]... [--size WxH] [--tile T]
+//                        [--threads N] [--json FILE]
+// Widths default to 48 (the paper's) and 24, with random weights (speed does not depend on
+// their values); --weights benchmarks a trained file instead.
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <memory>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "../pipeline/src/network/conv.hpp"
+#include "proden/network/pdnet.hpp"
+#include "sgemm.hpp"
+
+using namespace proden;
+using namespace proden::network;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+Tensor random_tensor(const std::string& name, std::vector<int> shape, float scale,
+                     std::mt19937& rng) {
+  Tensor t{name, std::move(shape), {}};
+  std::normal_distribution<float> n(0.0f, scale);
+  t.values.resize(t.size());
+  for (auto& v : t.values) v = n(rng);
+  return t;
+}
+
+WeightsFile random_weights(int width) {
+  std::mt19937 rng(42);
+  WeightsFile f;
+  auto conv = [&](const std::string& name, int cout, int cin, int k) {
+    const float he = std::sqrt(2.0f / static_cast<float>(cin * k * k));
+    f.tensors.push_back(random_tensor(name + ".weight", {cout, cin, k, k}, he, rng));
+    f.tensors.push_back(random_tensor(name + ".bias", {cout}, 0.01f, rng));
+  };
+  conv("conv_in", width, 18, 5);
+  for (const char* b : {"res1", "res2"}) {
+    conv(std::string(b) + ".conv1", width, width, 3);
+    conv(std::string(b) + ".conv2", width, width, 3);
+  }
+  conv("conv_out", 9, width, 3);
+  return f;
+}
+
+struct Run {
+  std::string label;
+  int width = 0;
+  unsigned threads = 1;
+  double seconds = 0, mps = 0, gflops_exec = 0, gflops_useful = 0, sgemm = 0;
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::vector<int> widths;
+  std::vector<std::string> weight_files;
+  int W = 1920, H = 1080, tile = 256;
+  unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  std::string json_path;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::fprintf(stderr, "%s needs a value\n", a.c_str());
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--width")
+      widths.push_back(std::stoi(next()));
+    else if (a == "--weights")
+      weight_files.push_back(next());
+    else if (a == "--size")
+      std::sscanf(next().c_str(), "%dx%d", &W, &H);
+    else if (a == "--tile")
+      tile = std::stoi(next());
+    else if (a == "--threads")
+      cores = static_cast<unsigned>(std::stoi(next()));
+    else if (a == "--json")
+      json_path = next();
+    else {
+      std::fprintf(stderr, "unknown argument %s (see the header of bench_network.cpp)\n",
+                   a.c_str());
+      return 2;
+    }
+  }
+  if (widths.empty() && weight_files.empty()) widths = {48, 24};
+
+  std::vector<std::pair<std::string, std::shared_ptr<const PdNet>>> nets;
+  for (int w : widths) {
+    nets.emplace_back("random w" + std::to_string(w),
+                      std::make_shared<const PdNet>(random_weights(w)));
+  }
+  for (const auto& path : weight_files) {
+    std::ifstream f(path, std::ios::binary);
+    const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(f)),
+                                           std::istreambuf_iterator<char>());
+    nets.emplace_back(path, std::make_shared<const PdNet>(parse_weights(bytes, path), path));
+  }
+
+  // Synthetic inputs in the ranges the mixer sees (values do not change the work done).
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  const Rect image{0, 0, W, H};
+  Buffer x(image, 3), y(image, 3), var(image, 3), sure(image, 3);
+  for (int c = 0; c < 3; ++c)
+    for (int py = 0; py < H; ++py)
+      for (int px = 0; px < W; ++px) {
+        x.at(px, py, c) = u(rng) * 2.0f;
+        y.at(px, py, c) = x.at(px, py, c) * (0.9f + 0.2f * u(rng));
+        var.at(px, py, c) = 0.01f * u(rng);
+        sure.at(px, py, c) = 0.005f * u(rng);
+      }
+  const MixInputs mi{W, H, x.view(), y.view(), var.view(), sure.view(), View{}};
+  const int tx = (W + tile - 1) / tile, ty = (H + tile - 1) / tile;
+  double exec_px = 0;  // pixels the network runs on, halos included
+  for (int t = 0; t < tx * ty; ++t) {
+    const Rect in{(t % tx) * tile, (t / tx) * tile, std::min((t % tx + 1) * tile, W),
+                  std::min((t / tx + 1) * tile, H)};
+    exec_px += static_cast<double>(in.expanded(PdNet::kRadius).intersect(image).area());
+  }
+
+  std::printf("learned-mixer inference, %dx%d, tiles %d + halo %d, kernel build: %s\n", W, H, tile,
+              PdNet::kRadius, detail::conv_isa());
+  std::vector<Run> runs;
+  std::vector<unsigned> thread_counts = {1};
+  if (cores > 1) thread_counts.push_back(cores);
+  std::string how;
+  for (unsigned threads : thread_counts) {
+    const double sg = proden::bench::sgemm_gflops(1024, static_cast<int>(threads), how);
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
+    for (const auto& [label, net] : nets) {
+      const NetworkMixer mixer(net);
+      auto pass = [&] {
+        tbb::parallel_for(0, tx * ty, [&](int t) {
+          const Rect out{(t % tx) * tile, (t / tx) * tile, std::min((t % tx + 1) * tile, W),
+                         std::min((t / tx + 1) * tile, H)};
+          Buffer alpha(out, 3);
+          mixer.mix(mi, out, alpha);
+        });
+      };
+      pass();  // warm-up (page faults, dispatch)
+      int reps = 0;
+      const auto t0 = Clock::now();
+      double secs = 0;
+      while (reps < 2 || secs < 3.0) {
+        pass();
+        ++reps;
+        secs = std::chrono::duration<double>(Clock::now() - t0).count();
+      }
+      Run r;
+      r.label = label;
+      r.width = net->width();
+      r.threads = threads;
+      r.seconds = secs / reps;
+      r.mps = W * static_cast<double>(H) / r.seconds / 1e6;
+      r.gflops_exec = exec_px * net->flops_per_pixel() / r.seconds / 1e9;
+      r.gflops_useful = W * static_cast<double>(H) * net->flops_per_pixel() / r.seconds / 1e9;
+      r.sgemm = sg;
+      std::printf(
+          "%-28s width %3d  %u thr: %.3f s/frame  %.2f MP/s  %.1f GFLOP/s executed (%.1f useful)"
+          "  sgemm %.1f GFLOP/s  ratio %.0f %%\n",
+          label.c_str(), r.width, threads, r.seconds, r.mps, r.gflops_exec, r.gflops_useful, sg,
+          100.0 * r.gflops_exec / sg);
+      std::fflush(stdout);
+      runs.push_back(r);
+    }
+  }
+  std::printf("sgemm via %s, 1024x1024\n", how.c_str());
+  if (!json_path.empty()) {
+    std::FILE* f = std::fopen(json_path.c_str(), "w");
+    if (!f) {
+      std::perror(json_path.c_str());
+      return 1;
+    }
+    std::fprintf(
+        f, "{\"size\": [%d, %d], \"tile\": %d, \"isa\": \"%s\", \"sgemm\": \"%s\", \"runs\": [\n",
+        W, H, tile, detail::conv_isa(), how.c_str());
+    for (std::size_t i = 0; i < runs.size(); ++i) {
+      const Run& r = runs[i];
+      std::fprintf(
+          f,
+          " {\"net\": \"%s\", \"width\": %d, \"threads\": %u, \"seconds\": %.5f, \"mp_per_s\": "
+          "%.4f, \"gflops_executed\": %.2f, \"gflops_useful\": %.2f, \"sgemm_gflops\": "
+          "%.2f, \"ratio\": %.4f}%s\n",
+          r.label.c_str(), r.width, r.threads, r.seconds, r.mps, r.gflops_exec, r.gflops_useful,
+          r.sgemm, r.gflops_exec / r.sgemm, i + 1 < runs.size() ? "," : "");
+    }
+    std::fprintf(f, "]}\n");
+    std::fclose(f);
+  }
+  return 0;
+}
