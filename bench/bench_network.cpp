@@ -9,6 +9,7 @@
 #include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -55,6 +56,38 @@ WeightsFile random_weights(int width) {
   }
   conv("conv_out", 9, width, 3);
   return f;
+}
+
+// GFLOP/s of one convolution layer shape on a 256x256 tile, 1 thread (where the time goes).
+double layer_gflops(int cin, int cout, int k) {
+  std::mt19937 rng(3);
+  std::normal_distribution<float> n(0.0f, 0.1f);
+  ConvLayer L;
+  L.name = "bench";
+  L.k = k;
+  L.cin = cin;
+  L.cout = cout;
+  L.cout_pad = (cout + 15) / 16 * 16;
+  L.weights.resize(static_cast<std::size_t>(k * k * cin * L.cout_pad));
+  for (auto& v : L.weights) v = n(rng);
+  L.bias.assign(static_cast<std::size_t>(L.cout_pad), 0.01f);
+  const int T = 256;
+  std::vector<float> in_store, out_store;
+  const auto in = detail::Activation::bind(in_store, T, T, cin);
+  auto out = detail::Activation::bind(out_store, T, T, L.cout_pad);
+  for (int y = 0; y < T; ++y)
+    for (int x = 0; x < T; ++x)
+      for (int c = 0; c < cin; ++c) in.px(y, x)[c] = std::abs(n(rng));
+  detail::conv_forward(L, in, out, nullptr, true);
+  int reps = 0;
+  double secs = 0;
+  const auto t0 = Clock::now();
+  while (secs < 0.5 || reps < 2) {
+    detail::conv_forward(L, in, out, nullptr, true);
+    ++reps;
+    secs = std::chrono::duration<double>(Clock::now() - t0).count();
+  }
+  return 2.0 * k * k * cin * cout * T * T * reps / secs / 1e9;
 }
 
 struct Run {
@@ -182,6 +215,19 @@ int main(int argc, char** argv) {
     }
   }
   std::printf("sgemm via %s, 1024x1024\n", how.c_str());
+  std::printf("per layer, 256x256 tile, 1 thread (GFLOP/s): ");
+  std::vector<std::array<double, 4>> layers;  // width, conv_in, residual 3x3, conv_out
+  for (const auto& [label, net] : nets) {
+    const int w = net->width();
+    bool seen = false;
+    for (const auto& l : layers) seen = seen || static_cast<int>(l[0]) == w;
+    if (seen) continue;
+    layers.push_back({static_cast<double>(w), layer_gflops(18, w, 5), layer_gflops(w, w, 3),
+                      layer_gflops(w, 9, 3)});
+    const auto& l = layers.back();
+    std::printf("w%d: conv_in %.1f, residual %.1f, conv_out %.1f; ", w, l[1], l[2], l[3]);
+  }
+  std::printf("\n");
   if (!json_path.empty()) {
     std::FILE* f = std::fopen(json_path.c_str(), "w");
     if (!f) {
@@ -200,6 +246,12 @@ int main(int argc, char** argv) {
           "%.2f, \"ratio\": %.4f}%s\n",
           r.label.c_str(), r.width, r.threads, r.seconds, r.mps, r.gflops_exec, r.gflops_useful,
           r.sgemm, r.gflops_exec / r.sgemm, i + 1 < runs.size() ? "," : "");
+    }
+    std::fprintf(f, "], \"layers_1thread_gflops\": [\n");
+    for (std::size_t i = 0; i < layers.size(); ++i) {
+      std::fprintf(
+          f, " {\"width\": %.0f, \"conv_in\": %.2f, \"residual\": %.2f, \"conv_out\": %.2f}%s\n",
+          layers[i][0], layers[i][1], layers[i][2], layers[i][3], i + 1 < layers.size() ? "," : "");
     }
     std::fprintf(f, "]}\n");
     std::fclose(f);

@@ -201,6 +201,28 @@ Isa isa() {
 
 }  // namespace
 
+Activation Activation::bind(std::vector<float>& storage, int h, int w, int cs) {
+  Activation a;
+  a.h = h;
+  a.w = w;
+  a.cs = cs;
+  const std::size_t need = static_cast<std::size_t>(h + 2 * kBorder) *
+                           static_cast<std::size_t>(w + 2 * kBorder) * static_cast<std::size_t>(cs);
+  if (storage.size() < need) storage.resize(need);
+  a.data = storage.data();
+  const std::ptrdiff_t rs = a.row_stride();
+  for (int y = 0; y < h + 2 * kBorder; ++y) {
+    float* row = a.data + y * rs;
+    if (y < kBorder || y >= h + kBorder) {
+      std::fill(row, row + rs, 0.0f);
+    } else {
+      std::fill(row, row + kBorder * cs, 0.0f);
+      std::fill(row + (w + kBorder) * cs, row + rs, 0.0f);
+    }
+  }
+  return a;
+}
+
 const char* conv_isa() {
   switch (isa()) {
     case Isa::avx512:

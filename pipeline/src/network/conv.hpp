@@ -11,26 +11,18 @@
 namespace proden::network::detail {
 
 // An activation map of h x w pixels, `cs` floats per pixel, with a zero border of kBorder pixels
-// so 3x3 and 5x5 convolutions read without bounds checks.
+// so 3x3 and 5x5 convolutions read without bounds checks. It views storage owned elsewhere
+// (reused between tiles): bind() sizes the storage and zeroes only the border, because every
+// convolution and the input builder overwrite the whole interior.
 struct Activation {
   static constexpr int kBorder = 2;
   int h = 0, w = 0, cs = 0;
-  std::vector<float> data;
+  float* data = nullptr;
 
-  Activation(int h_, int w_, int cs_)
-      : h(h_),
-        w(w_),
-        cs(cs_),
-        data(static_cast<std::size_t>(h_ + 2 * kBorder) *
-             static_cast<std::size_t>(w_ + 2 * kBorder) * static_cast<std::size_t>(cs_)) {}
+  static Activation bind(std::vector<float>& storage, int h, int w, int cs);
   std::ptrdiff_t row_stride() const { return static_cast<std::ptrdiff_t>(w + 2 * kBorder) * cs; }
-  float* px(int y, int x) {
-    return data.data() + (y + kBorder) * row_stride() +
-           static_cast<std::ptrdiff_t>(x + kBorder) * cs;
-  }
-  const float* px(int y, int x) const {
-    return data.data() + (y + kBorder) * row_stride() +
-           static_cast<std::ptrdiff_t>(x + kBorder) * cs;
+  float* px(int y, int x) const {
+    return data + (y + kBorder) * row_stride() + static_cast<std::ptrdiff_t>(x + kBorder) * cs;
   }
 };
 

@@ -107,10 +107,12 @@ void network_features(float x, float y, float var, float sure, float out[6]) {
 }
 
 void PdNet::infer(const View& x, const View& y, const View& var, const View& sure,
-                  const Rect& region, Buffer& alpha, Buffer* raw) const {
+                  const Rect& region, Buffer& alpha, Buffer* raw, InferScratch* scratch) const {
   const int h = region.height(), w = region.width();
   if (h <= 0 || w <= 0) return;
-  Activation in(h, w, kInputs);
+  InferScratch local;
+  InferScratch& s = scratch ? *scratch : local;
+  const Activation in = Activation::bind(s.buffers[0], h, w, kInputs);
   for (int py = 0; py < h; ++py) {
     for (int px = 0; px < w; ++px) {
       float* p = in.px(py, px);
@@ -124,13 +126,15 @@ void PdNet::infer(const View& x, const View& y, const View& var, const View& sur
     }
   }
   const int cp = conv_in_.cout_pad;
-  Activation a(h, w, cp), b(h, w, cp), t(h, w, cp);
+  Activation a = Activation::bind(s.buffers[1], h, w, cp);
+  Activation b = Activation::bind(s.buffers[2], h, w, cp);
+  Activation t = Activation::bind(s.buffers[3], h, w, cp);
   detail::conv_forward(conv_in_, in, a, nullptr, true);
   detail::conv_forward(res_[0][0], a, t, nullptr, true);
   detail::conv_forward(res_[0][1], t, b, &a, true);
   detail::conv_forward(res_[1][0], b, t, nullptr, true);
   detail::conv_forward(res_[1][1], t, a, &b, true);
-  Activation o(h, w, conv_out_.cout_pad);
+  Activation o = Activation::bind(s.buffers[4], h, w, conv_out_.cout_pad);
   detail::conv_forward(conv_out_, a, o, nullptr, false);
 
   for (int py = 0; py < h; ++py) {
@@ -157,7 +161,7 @@ void NetworkMixer::mix(const MixInputs& in, const Rect& out, Buffer& alpha) cons
   const Rect image{0, 0, in.width, in.height};
   const Rect region = out.expanded(PdNet::kRadius).intersect(image);
   Buffer full(region, 3);
-  net_->infer(in.x, in.y, in.variance, in.sure, region, full);
+  net_->infer(in.x, in.y, in.variance, in.sure, region, full, nullptr, &scratch_.local());
   for (int c = 0; c < 3; ++c) {
     for (int py = out.y0; py < out.y1; ++py) {
       for (int px = out.x0; px < out.x1; ++px) alpha.at(px, py, c) = full.at(px, py, c);

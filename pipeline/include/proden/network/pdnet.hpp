@@ -3,8 +3,11 @@
 // pipeline's tiles with a halo of its receptive radius (7), so tiles equal the whole image.
 #pragma once
 
+#include <tbb/enumerable_thread_specific.h>
+
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "proden/mixer.hpp"
 #include "proden/network/weights.hpp"
@@ -18,6 +21,11 @@ struct ConvLayer {
   std::string name;
   int k = 0, cin = 0, cout = 0, cout_pad = 0;
   std::vector<float> weights, bias;
+};
+
+// Activation buffers PdNet::infer reuses between calls (one per thread, never shared).
+struct InferScratch {
+  std::vector<float> buffers[5];
 };
 
 class PdNet {
@@ -37,8 +45,9 @@ class PdNet {
   // Runs the network over `region`, reading x, y, var, sure (3 planes each, views covering the
   // region), zero-padded at the region's border; writes alpha (3 planes) and, if given, the raw
   // 9-channel output. Buffers must cover `region`.
+  // `scratch` (optional) keeps the buffers between calls.
   void infer(const View& x, const View& y, const View& var, const View& sure, const Rect& region,
-             Buffer& alpha, Buffer* raw = nullptr) const;
+             Buffer& alpha, Buffer* raw = nullptr, InferScratch* scratch = nullptr) const;
 
  private:
   std::string source_;
@@ -59,6 +68,7 @@ class NetworkMixer final : public Mixer {
 
  private:
   std::shared_ptr<const PdNet> net_;
+  mutable tbb::enumerable_thread_specific<InferScratch> scratch_;  // per worker thread
 };
 
 }  // namespace proden::network
