@@ -4,10 +4,16 @@
 #   make test    build, run the whole CTest suite, then the unit tests again under ASan+UBSan
 #   make run     build and start the daemon (`proden serve`) with a demo job fed by the samples
 #   make run-cli build and run the CLI on the bundled samples
+#   make training-data  render the learned mixer's training/validation frames with Blender and
+#                compute their inputs with proden (slow, resumable; TRAINING_DATA, default
+#                /work/trainingdata; training/README.md)
+#   make train   train both network widths on that data and export weights + parity fixtures
+#                (PyTorch from Debian, CPU; training/TRAINING.md); `make validate` prints the
+#                validation table of both mixers as proden runs them
 #   make bench   build the benchmarks into build-bench/, render missing evaluation sets (EVALDATA,
 #                default /work/evaldata; slow on a fresh machine), regenerate bench/results/ and
 #                bench/RESULTS.md (bench/run_all.sh documents its variables)
-.PHONY: build test run run-cli deps asan test-asan format clean bench
+.PHONY: build test run run-cli deps asan test-asan format clean bench training-data train validate
 
 BUILD_DIR ?= build
 ASAN_DIR  ?= build-asan
@@ -54,6 +60,29 @@ bench: deps
 	cmake --build $(BENCH_DIR) -j $(JOBS) --target proden_eval_levels proden_bench_pipeline \
 	    proden_bench_network proden_micro_kernels
 	BUILD_DIR=$(BENCH_DIR) bench/run_all.sh
+
+TRAIN_BUDGET ?= 1440   # seconds of training per width (both widths train at once, 1 thread each)
+
+training-data: build
+	PRODEN=$(BUILD_DIR)/proden training/generate.sh
+
+# The committed weights came from exactly this (training/TRAINING.md; --steps/--calib in
+# training/runs/w*/summary.json "reproduce" replays a budget run step for step).
+train: deps
+	for w in 48 24; do \
+	  /usr/bin/python3 training/train.py --width $$w --budget $(TRAIN_BUDGET) --crop 64 --batch 12 \
+	      --max-lr 2e-3 --threads 1 --seed 1 --log-every 50 --val-every 1000 \
+	      --out training/runs/w$$w & \
+	done; wait
+	for w in 48 24; do \
+	  /usr/bin/python3 training/export.py --model training/runs/w$$w/model.pt \
+	      --weights training/weights/pdnet_w$$w.pdnw --fixture tests/data/pdnet_parity_w$$w.bin \
+	      || exit 1; \
+	done
+	cp training/weights/pdnet_w48.pdnw training/weights/pdnet.pdnw   # the built-in network
+
+validate: build
+	/usr/bin/python3 training/validate.py --proden $(BUILD_DIR)/proden
 
 format:
 	clang-format -i $$(git ls-files '*.cpp' '*.hpp')

@@ -11,6 +11,7 @@ packages=(
   nlohmann-json3-dev libspdlog-dev libfmt-dev catch2 libcli11-dev libtbb-dev
   python3 curl                                              # service tests, make run
   libbenchmark-dev libopenblas-dev python3-matplotlib       # make bench (micro, sgemm, plots)
+  blender python3-torch python3-numpy python3-openimageio   # learned mixer: data, training, tests
   "$@"
 )
 

@@ -4,6 +4,7 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -302,12 +303,12 @@ TEST_CASE("hard inputs give alpha in [0, 1], never NaN", "[network][hard]") {
       }
 }
 
-TEST_CASE("the built-in weights parse and match their PyTorch parity fixture", "[network]") {
-  const auto net = builtin_network();
-  REQUIRE(net->width() >= 1);
-  const std::string dir = PRODEN_SOURCE_DIR;
-  const std::string fixture =
-      dir + "/tests/data/pdnet_parity_w" + std::to_string(net->width()) + ".bin";
+namespace {
+
+// `net` against a PDNP fixture written by training/export.py (PyTorch's raw output and alpha).
+void check_parity(const PdNet& raw_net, const std::string& fixture) {
+  const PdNet* net = &raw_net;
+  INFO("fixture " << fixture);
   const std::vector<unsigned char> b = read_file(fixture);
   REQUIRE(b.size() > 16);
   REQUIRE(std::memcmp(b.data(), "PDNP", 4) == 0);
@@ -348,4 +349,36 @@ TEST_CASE("the built-in weights parse and match their PyTorch parity fixture", "
                      std::abs(static_cast<double>(alpha_ref.at(px, py, c)) - alpha.at(px, py, c)));
   INFO("alpha: max diff " << max_alpha_diff);
   CHECK(max_alpha_diff <= 1e-4);
+}
+
+std::shared_ptr<const PdNet> load(const std::string& path) {
+  return std::make_shared<const PdNet>(parse_weights(read_file(path), path), path);
+}
+
+}  // namespace
+
+// tests/training/smoke.sh sets PRODEN_TEST_WEIGHTS / PRODEN_TEST_FIXTURE to a freshly trained and
+// exported network; otherwise the committed weights are checked against their fixtures.
+TEST_CASE("the network matches its PyTorch parity fixture", "[network][parity]") {
+  const char* weights_env = std::getenv("PRODEN_TEST_WEIGHTS");
+  const char* fixture_env = std::getenv("PRODEN_TEST_FIXTURE");
+  if (weights_env || fixture_env) {
+    REQUIRE(weights_env);
+    REQUIRE(fixture_env);
+    check_parity(*load(weights_env), fixture_env);
+    return;
+  }
+  const std::string dir = PRODEN_SOURCE_DIR;
+  SECTION("built-in (training/weights/pdnet.pdnw)") {
+    const auto net = builtin_network();
+    check_parity(*net, dir + "/tests/data/pdnet_parity_w" + std::to_string(net->width()) + ".bin");
+  }
+  SECTION("width 24") {
+    check_parity(*load(dir + "/training/weights/pdnet_w24.pdnw"),
+                 dir + "/tests/data/pdnet_parity_w24.bin");
+  }
+  SECTION("untrained width 48 (alpha inside (0, 1): exercises the division)") {
+    check_parity(*load(dir + "/training/weights/pdnet_w48_init.pdnw"),
+                 dir + "/tests/data/pdnet_parity_init_w48.bin");
+  }
 }
