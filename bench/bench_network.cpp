@@ -32,32 +32,6 @@ using Clock = std::chrono::steady_clock;
 
 namespace {
 
-Tensor random_tensor(const std::string& name, std::vector<int> shape, float scale,
-                     std::mt19937& rng) {
-  Tensor t{name, std::move(shape), {}};
-  std::normal_distribution<float> n(0.0f, scale);
-  t.values.resize(t.size());
-  for (auto& v : t.values) v = n(rng);
-  return t;
-}
-
-WeightsFile random_weights(int width) {
-  std::mt19937 rng(42);
-  WeightsFile f;
-  auto conv = [&](const std::string& name, int cout, int cin, int k) {
-    const float he = std::sqrt(2.0f / static_cast<float>(cin * k * k));
-    f.tensors.push_back(random_tensor(name + ".weight", {cout, cin, k, k}, he, rng));
-    f.tensors.push_back(random_tensor(name + ".bias", {cout}, 0.01f, rng));
-  };
-  conv("conv_in", width, 18, 5);
-  for (const char* b : {"res1", "res2"}) {
-    conv(std::string(b) + ".conv1", width, width, 3);
-    conv(std::string(b) + ".conv2", width, width, 3);
-  }
-  conv("conv_out", 9, width, 3);
-  return f;
-}
-
 // GFLOP/s of one convolution layer shape on a 256x256 tile, 1 thread (where the time goes).
 double layer_gflops(int cin, int cout, int k) {
   std::mt19937 rng(3);
@@ -137,7 +111,7 @@ int main(int argc, char** argv) {
   std::vector<std::pair<std::string, std::shared_ptr<const PdNet>>> nets;
   for (int w : widths) {
     nets.emplace_back("random w" + std::to_string(w),
-                      std::make_shared<const PdNet>(random_weights(w)));
+                      std::make_shared<const PdNet>(random_weights(w, 42)));
   }
   for (const auto& path : weight_files) {
     std::ifstream f(path, std::ios::binary);

@@ -20,29 +20,6 @@ using namespace proden::network;
 
 namespace {
 
-WeightsFile random_weights(int width, unsigned seed = 3) {
-  std::mt19937 rng(seed);
-  WeightsFile f;
-  f.metadata = R"({"test": true})";
-  auto conv = [&](const std::string& name, int cout, int cin, int k) {
-    std::normal_distribution<float> n(0.0f, std::sqrt(2.0f / static_cast<float>(cin * k * k)));
-    Tensor w{name + ".weight", {cout, cin, k, k}, {}};
-    w.values.resize(w.size());
-    for (auto& v : w.values) v = n(rng);
-    Tensor b{name + ".bias", {cout}, std::vector<float>(static_cast<std::size_t>(cout))};
-    for (auto& v : b.values) v = 0.1f * n(rng);
-    f.tensors.push_back(std::move(w));
-    f.tensors.push_back(std::move(b));
-  };
-  conv("conv_in", width, 18, 5);
-  for (const char* b : {"res1", "res2"}) {
-    conv(std::string(b) + ".conv1", width, width, 3);
-    conv(std::string(b) + ".conv2", width, width, 3);
-  }
-  conv("conv_out", 9, width, 3);
-  return f;
-}
-
 struct Inputs {
   Buffer x, y, var, sure;
 };
@@ -138,7 +115,7 @@ std::string parse_error(const std::vector<unsigned char>& b) {
 }  // namespace
 
 TEST_CASE("weights files round-trip and every corruption is refused by name", "[network]") {
-  const WeightsFile f = random_weights(16);
+  const WeightsFile f = random_weights(16, 3);
   std::vector<unsigned char> bytes = serialize_weights(f);
   const WeightsFile back = parse_weights(bytes, "ok.pdnw");
   REQUIRE(back.tensors.size() == f.tensors.size());

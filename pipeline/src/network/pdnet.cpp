@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 #include <set>
 
 #include "conv.hpp"
@@ -93,6 +94,29 @@ PdNet::PdNet(const WeightsFile& weights, std::string source) : source_(std::move
 double PdNet::flops_per_pixel() const {
   double f = layer_flops(conv_in_) + layer_flops(conv_out_);
   for (const auto& b : res_) f += layer_flops(b[0]) + layer_flops(b[1]);
+  return f;
+}
+
+WeightsFile random_weights(int width, unsigned seed) {
+  std::mt19937 rng(seed);
+  WeightsFile f;
+  f.metadata = R"({"untrained": true})";
+  auto conv = [&](const std::string& name, int cout, int cin, int k) {
+    std::normal_distribution<float> n(0.0f, std::sqrt(2.0f / static_cast<float>(cin * k * k)));
+    Tensor w{name + ".weight", {cout, cin, k, k}, {}};
+    w.values.resize(w.size());
+    for (auto& v : w.values) v = n(rng);
+    Tensor b{name + ".bias", {cout}, std::vector<float>(static_cast<std::size_t>(cout))};
+    for (auto& v : b.values) v = 0.1f * n(rng);
+    f.tensors.push_back(std::move(w));
+    f.tensors.push_back(std::move(b));
+  };
+  conv("conv_in", width, PdNet::kInputs, 5);
+  for (const char* b : {"res1", "res2"}) {
+    conv(std::string(b) + ".conv1", width, width, 3);
+    conv(std::string(b) + ".conv2", width, width, 3);
+  }
+  conv("conv_out", PdNet::kOutputs, width, 3);
   return f;
 }
 

@@ -55,6 +55,10 @@ class PdNet {
   ConvLayer conv_in_, res_[2][2], conv_out_;
 };
 
+// He-initialised weights of the architecture's shapes (biases N(0, 0.1 He)), deterministic in
+// `seed`: untrained, for tests and benchmarks (inference time does not depend on the values).
+WeightsFile random_weights(int width, unsigned seed);
+
 // The 18 input channels at one pixel and channel c (docs/mixer_network.md).
 void network_features(float x, float y, float var, float sure, float out[6]);
 
