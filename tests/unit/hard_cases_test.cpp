@@ -1,6 +1,7 @@
-// Numerically hard frames through accumulation and the whole pipeline: each must give finite
-// output, alpha in [0, 1], a result between render and denoised, and a denoised image inside the
-// render's value range (the filter is a convex combination).
+// Numerically hard frames through accumulation and the whole pipeline (with the closed-form and
+// the learned mixer): each must give finite output, alpha in [0, 1], a result between render and
+// denoised, and a denoised image inside the render's value range (the filter is a convex
+// combination).
 #include <catch2/catch.hpp>
 
 #include <cmath>
@@ -9,6 +10,7 @@
 #include <random>
 
 #include "proden/accumulator.hpp"
+#include "proden/network/builtin.hpp"
 #include "proden/progressive.hpp"
 
 using namespace proden;
@@ -74,8 +76,15 @@ void check_sane(const FrameEstimate& e, const PipelineResult& r) {
   }
 }
 
+// Runs the pipeline with the learned mixer and with the closed form (whose result is returned),
+// checking both.
 PipelineResult run_checked(const FrameAccumulator& f, const PipelineOptions& o = small_options()) {
   const FrameEstimate e = f.estimate();
+  static const network::NetworkMixer net(network::builtin_network());
+  {
+    INFO("learned mixer");
+    check_sane(e, run_pipeline(e, o, nullptr, &net));
+  }
   const PipelineResult r = run_pipeline(e, o);
   check_sane(e, r);
   return r;
