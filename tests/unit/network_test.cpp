@@ -11,6 +11,7 @@
 #include <iterator>
 #include <random>
 
+#include "../../pipeline/src/network/conv.hpp"
 #include "proden/network/builtin.hpp"
 #include "proden/network/pdnet.hpp"
 #include "proden/network/weights.hpp"
@@ -358,4 +359,66 @@ TEST_CASE("the network matches its PyTorch parity fixture", "[network][parity]")
     check_parity(*load(dir + "/training/weights/pdnet_w48_init.pdnw"),
                  dir + "/tests/data/pdnet_parity_init_w48.bin");
   }
+}
+
+TEST_CASE("every kernel build this CPU runs (AVX-512, AVX2, baseline) computes the same layer",
+          "[network]") {
+  std::mt19937 rng(21);
+  std::normal_distribution<float> n(0.0f, 0.2f);
+  struct Shape {
+    int cin, cout, k;
+    bool residual, relu;
+  };
+  // 48 outputs = 3 vectors, 24 -> 2 (padded), 9 -> 1; 5x5 and 3x3; with and without residual.
+  for (const Shape sh : {Shape{18, 48, 5, false, true}, Shape{48, 48, 3, true, true},
+                         Shape{24, 24, 3, false, true}, Shape{48, 9, 3, false, false}}) {
+    network::ConvLayer L;
+    L.name = "t";
+    L.k = sh.k;
+    L.cin = sh.cin;
+    L.cout = sh.cout;
+    L.cout_pad = (sh.cout + 15) / 16 * 16;
+    L.weights.assign(static_cast<std::size_t>(sh.k * sh.k * sh.cin * L.cout_pad), 0.0f);
+    L.bias.assign(static_cast<std::size_t>(L.cout_pad), 0.0f);
+    for (int t = 0; t < sh.k * sh.k * sh.cin; ++t)
+      for (int o = 0; o < sh.cout; ++o)
+        L.weights[static_cast<std::size_t>(t * L.cout_pad + o)] = n(rng);
+    for (int o = 0; o < sh.cout; ++o) L.bias[static_cast<std::size_t>(o)] = n(rng);
+    const int h = 9, w = 19;  // remainders for every pixel block size
+    std::vector<float> in_s, res_s;
+    const auto in = network::detail::Activation::bind(in_s, h, w, sh.cin);
+    const auto res = network::detail::Activation::bind(res_s, h, w, L.cout_pad);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        for (int c = 0; c < sh.cin; ++c) in.px(y, x)[c] = n(rng);
+        for (int c = 0; c < L.cout_pad; ++c) res.px(y, x)[c] = c < sh.cout ? n(rng) : 0.0f;
+      }
+    const int r = sh.k / 2;
+    for (const std::string& isa : network::detail::conv_isas_available()) {
+      std::vector<float> out_s;
+      auto out = network::detail::Activation::bind(out_s, h, w, L.cout_pad);
+      network::detail::conv_forward_with(isa, L, in, out, sh.residual ? &res : nullptr, sh.relu);
+      double worst = 0;
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+          for (int o = 0; o < sh.cout; ++o) {
+            double s = L.bias[static_cast<std::size_t>(o)];
+            for (int ky = 0; ky < sh.k; ++ky)
+              for (int kx = 0; kx < sh.k; ++kx) {
+                const int sy = y + ky - r, sx = x + kx - r;
+                if (sy < 0 || sx < 0 || sy >= h || sx >= w) continue;
+                for (int i = 0; i < sh.cin; ++i)
+                  s += static_cast<double>(L.weights[static_cast<std::size_t>(
+                           ((ky * sh.k + kx) * sh.cin + i) * L.cout_pad + o)]) *
+                       in.px(sy, sx)[i];
+              }
+            if (sh.residual) s += res.px(y, x)[o];
+            if (sh.relu) s = std::max(s, 0.0);
+            worst = std::max(worst, std::abs(s - out.px(y, x)[o]));
+          }
+      INFO("isa " << isa << ", " << sh.cin << " -> " << sh.cout << ", " << sh.k << "x" << sh.k);
+      CHECK(worst < 1e-4);
+    }
+  }
+  CHECK(network::detail::conv_isas_available().front() == "baseline");
 }

@@ -1,6 +1,8 @@
 #include "conv.hpp"
 
 #include <algorithm>
+#include <stdexcept>
+#include <string>
 
 #if defined(__x86_64__)
 #include <immintrin.h>
@@ -254,22 +256,35 @@ const char* conv_isa() {
   }
 }
 
-void conv_forward(const ConvLayer& layer, const Activation& in, Activation& out,
-                  const Activation* residual, bool relu) {
+std::vector<std::string> conv_isas_available() {
+  std::vector<std::string> out = {"baseline"};
+#ifdef PRODEN_X86_DISPATCH
+  if (isa() == Isa::avx2 || isa() == Isa::avx512) out.emplace_back("avx2");
+  if (isa() == Isa::avx512) out.emplace_back("avx512");
+#endif
+  return out;
+}
+
+void conv_forward_with(const std::string& which, const ConvLayer& layer, const Activation& in,
+                       Activation& out, const Activation* residual, bool relu) {
   const Args a{&layer, &in, &out, residual, relu};
 #ifdef PRODEN_X86_DISPATCH
-  switch (isa()) {
-    case Isa::avx512:
-      run_avx512(a);
-      return;
-    case Isa::avx2:
-      run_avx2(a);
-      return;
-    default:
-      break;
+  if (which == "avx512" && isa() == Isa::avx512) {
+    run_avx512(a);
+    return;
+  }
+  if (which == "avx2" && (isa() == Isa::avx2 || isa() == Isa::avx512)) {
+    run_avx2(a);
+    return;
   }
 #endif
+  if (which != "baseline") throw std::invalid_argument("conv: ISA " + which + " not available");
   run_baseline(a);
+}
+
+void conv_forward(const ConvLayer& layer, const Activation& in, Activation& out,
+                  const Activation* residual, bool relu) {
+  conv_forward_with(conv_isa(), layer, in, out, residual, relu);
 }
 
 }  // namespace proden::network::detail

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <cstddef>
+#include <string>
 #include <vector>
 
 #include "proden/network/pdnet.hpp"
@@ -33,5 +34,10 @@ void conv_forward(const ConvLayer& layer, const Activation& in, Activation& out,
 
 // Which kernel build conv_forward uses on this CPU ("avx512", "avx2" or "baseline").
 const char* conv_isa();
+
+// For tests: the builds this CPU can run, and conv_forward with a given one.
+std::vector<std::string> conv_isas_available();
+void conv_forward_with(const std::string& isa, const ConvLayer& layer, const Activation& in,
+                       Activation& out, const Activation* residual, bool relu);
 
 }  // namespace proden::network::detail
