@@ -106,8 +106,9 @@ void run_baseline(const Args& a) {
 #define PRODEN_X86_DISPATCH 1
 
 // AVX-512 with intrinsics: GCC spills vector-extension temporaries to the stack here, which
-// turns every FMA into a load; named __m512 registers keep 24 accumulators, 3 weights and one
-// broadcast in the 32 zmm registers (11 loads per 24 FMAs).
+// turns every FMA into a load; named __m512 registers keep 21 accumulators (G=3 x P=7), 3 weights
+// and one broadcast in the 32 zmm registers (10 loads per 21 FMAs; P=8 made GCC spill a weight).
+// `ky` is the kernel row this call adds (see row_group512).
 template <int G, int P>
 requires(G >= 1 && G <= 3)
     __attribute__((target("avx512f"), always_inline)) inline void block512(const Args& a, int oy,
