@@ -84,6 +84,45 @@ def make_flat(obj):
     return obj
 
 
+def ico_sphere(name, radius, location, mat, subdivisions=4):
+    """Flat-shaded icosphere with material `mat`."""
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=subdivisions, radius=radius,
+                                          location=location)
+    obj = make_flat(bpy.context.active_object)
+    obj.name = name
+    obj.data.materials.append(mat)
+    return obj
+
+
+def cylinder(name, radius, z0, z1, n, mat, location):
+    """Closed n-gon prism from z0 to z1 (flat-shaded), normals outwards."""
+    v = []
+    for z in (z0, z1):
+        for i in range(n):
+            a = 2.0 * math.pi * i / n
+            v.append((radius * math.cos(a), radius * math.sin(a), z))
+    f = [tuple(reversed(range(n))), tuple(range(n, 2 * n))]
+    for i in range(n):
+        j = (i + 1) % n
+        f.append((i, j, n + j, n + i))
+    return flat_mesh(name, v, f, mat, location)
+
+
+def area_light(name, shape, size, energy, color, location, spread=None):
+    """Area light object (one-sided, facing its local -z) linked to the scene."""
+    ld = bpy.data.lights.new(name, type="AREA")
+    ld.shape = shape
+    ld.size = size
+    if spread is not None:
+        ld.spread = spread
+    ld.energy = energy
+    ld.color = color
+    light = bpy.data.objects.new(name, ld)
+    light.location = location
+    bpy.context.scene.collection.objects.link(light)
+    return light
+
+
 def principled(name, color, roughness=0.5, metallic=0.0, specular=0.5):
     mat = bpy.data.materials.new(name)
     mat.use_nodes = True

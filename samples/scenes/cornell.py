@@ -40,20 +40,11 @@ def build(scene, args):
     common.box("tall_block", (0.55, 0.55, 1.2), (-0.35, 0.35, 0.6), 18.0, glossy)
     common.box("short_block", (0.55, 0.55, 0.55), (0.4, -0.15, 0.275), -17.0, white)
 
-    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=0.3, location=(0.42, -0.15, 0.85))
-    sphere = common.make_flat(bpy.context.active_object)
-    sphere.name = "metal_sphere"
-    sphere.data.materials.append(metal)
+    common.ico_sphere("metal_sphere", 0.3, (0.42, -0.15, 0.85), metal)
 
     # Small area light just below the ceiling, facing down.
-    ld = bpy.data.lights.new("ceiling_light", type="AREA")
-    ld.shape = "SQUARE"
-    ld.size = 0.35
-    ld.energy = 12.0
-    ld.color = (1.0, 0.85, 0.65)
-    light = bpy.data.objects.new("ceiling_light", ld)
-    light.location = (0.0, 0.45, 1.995)
-    scene.collection.objects.link(light)
+    common.area_light("ceiling_light", "SQUARE", 0.35, 12.0, (1.0, 0.85, 0.65),
+                      (0.0, 0.45, 1.995))
 
     cd = bpy.data.cameras.new("camera")
     cd.lens = 20.0

@@ -37,20 +37,6 @@ def glass_material(name, ior, color=(1.0, 1.0, 1.0), roughness=0.0):
     return mat
 
 
-def cylinder(name, radius, z0, z1, n, mat, location):
-    """Closed n-gon prism (flat-shaded), normals outwards."""
-    v = []
-    for z in (z0, z1):
-        for i in range(n):
-            a = 2.0 * math.pi * i / n
-            v.append((radius * math.cos(a), radius * math.sin(a), z))
-    f = [tuple(reversed(range(n))), tuple(range(n, 2 * n))]
-    for i in range(n):
-        j = (i + 1) % n
-        f.append((i, j, n + j, n + i))
-    return common.flat_mesh(name, v, f, mat, location)
-
-
 def build(scene, args):
     floor_mat = common.principled("floor", (0.7, 0.68, 0.62), roughness=1.0, specular=0.0)
     wall_mat = common.principled("wall", (0.45, 0.5, 0.6), roughness=1.0, specular=0.0)
@@ -64,30 +50,21 @@ def build(scene, args):
     common.flat_mesh("back_wall", [(-G, 2.0, 0), (G, 2.0, 0), (G, 2.0, 3), (-G, 2.0, 3)],
                      [(0, 1, 2, 3)], wall_mat)
 
-    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=5, radius=0.5, location=(-0.55, 0.1, 0.5))
-    sph = common.make_flat(bpy.context.active_object)
-    sph.name = "glass_sphere"
-    sph.data.materials.append(glass)
+    common.ico_sphere("glass_sphere", 0.5, (-0.55, 0.1, 0.5), glass, subdivisions=5)
 
     common.box("glass_box", (0.55, 0.55, 0.7), (0.55, 0.55, 0.35), 35.0, glass_box_mat)
 
     # "Glass of liquid": a solid glass prism with a tinted, lower-IOR liquid prism inside
     # (nested surfaces, not physically exact interfaces, but refractive and coloured).
     cx, cy = 0.35, -0.55
-    cylinder("tumbler_outer", 0.22, 0.0, 0.55, 32, glass, (cx, cy, 0))
-    cylinder("liquid", 0.19, 0.03, 0.40, 32, liquid, (cx, cy, 0))
+    common.cylinder("tumbler_outer", 0.22, 0.0, 0.55, 32, glass, (cx, cy, 0))
+    common.cylinder("liquid", 0.19, 0.03, 0.40, 32, liquid, (cx, cy, 0))
 
     # Small bright area light behind, left of and above the objects (outside the frame),
     # pointing at them: the shadows and caustics fall forward-right, towards the camera.
-    ld = bpy.data.lights.new("key", type="AREA")
-    ld.shape = "DISK"
-    ld.size = 0.3
-    ld.spread = math.radians(80.0)   # keeps the grazing back wall out of the beam
-    ld.energy = 70.0
-    ld.color = (1.0, 0.95, 0.85)
-    key = bpy.data.objects.new("key", ld)
-    key.location = (-1.3, 1.1, 3.4)
-    scene.collection.objects.link(key)
+    # (spread 80 degrees keeps the grazing back wall out of the beam)
+    key = common.area_light("key", "DISK", 0.3, 70.0, (1.0, 0.95, 0.85), (-1.3, 1.1, 3.4),
+                            spread=math.radians(80.0))
     common.look_at(key, (0.2, -0.5, 0.0))
 
     cd = bpy.data.cameras.new("camera")

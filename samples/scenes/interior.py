@@ -21,19 +21,6 @@ import bpy  # noqa: E402
 import common  # noqa: E402
 
 
-def cylinder(name, radius, height, n, mat, location):
-    v = []
-    for z in (0.0, height):
-        for i in range(n):
-            a = 2.0 * math.pi * i / n
-            v.append((radius * math.cos(a), radius * math.sin(a), z))
-    f = [tuple(reversed(range(n))), tuple(range(n, 2 * n))]
-    for i in range(n):
-        j = (i + 1) % n
-        f.append((i, j, n + j, n + i))
-    return common.flat_mesh(name, v, f, mat, location)
-
-
 def build(scene, args):
     plaster = common.principled("plaster", (0.8, 0.78, 0.74), roughness=1.0, specular=0.0)
     accent = common.principled("accent_wall", (0.25, 0.42, 0.55), roughness=1.0, specular=0.0)
@@ -67,33 +54,20 @@ def build(scene, args):
         common.box("table_leg%d" % i, (0.06, 0.06, 0.73), (tx + c * dx - s * dy, ty + s * dx + c * dy,
                                                      0.365), 10.0, table_mat)
 
-    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=0.18,
-                                          location=(tx - 0.3, ty, 0.955))
-    sph = common.make_flat(bpy.context.active_object)
-    sph.name = "red_sphere"
-    sph.data.materials.append(red_gloss)
-    cylinder("metal_can", 0.1, 0.35, 24, metal, (tx + 0.35, ty + 0.1, 0.775))
+    common.ico_sphere("red_sphere", 0.18, (tx - 0.3, ty, 0.955), red_gloss)
+    common.cylinder("metal_can", 0.1, 0.0, 0.35, 24, metal, (tx + 0.35, ty + 0.1, 0.775))
 
     # Sofa-like block (seat + back) against the left wall, bookcase against the far wall.
     common.box("sofa_seat", (0.9, 2.0, 0.45), (-2.0, 0.6, 0.225), 0.0, sofa_mat)
     common.box("sofa_back", (0.25, 2.0, 0.5), (-2.33, 0.6, 0.7), 0.0, sofa_mat)
     common.box("bookcase", (1.4, 0.4, 2.0), (1.3, 2.75, 1.0), 0.0, shelf_mat)
-    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=0.35, location=(1.5, -0.3, 0.35))
-    ball = common.make_flat(bpy.context.active_object)
-    ball.name = "metal_ball"
-    ball.data.materials.append(metal)
+    common.ico_sphere("metal_ball", 0.35, (1.5, -0.3, 0.35), metal)
 
     # The only light: a small area light behind the camera, facing the front wall (-y),
     # 0.65 m from it. One-sided, so it is invisible from the room (glossy objects see its
     # unlit back side); only the front wall (y < -2.35) lies in front of its plane.
-    ld = bpy.data.lights.new("hidden_light", type="AREA")
-    ld.shape = "SQUARE"
-    ld.size = 0.5
-    ld.energy = 150.0
-    ld.color = (1.0, 0.88, 0.7)
-    light = bpy.data.objects.new("hidden_light", ld)
-    light.location = (0.0, -2.35, 1.9)
-    scene.collection.objects.link(light)
+    light = common.area_light("hidden_light", "SQUARE", 0.5, 150.0, (1.0, 0.88, 0.7),
+                              (0.0, -2.35, 1.9))
     common.look_at(light, (0.0, -3.0, 1.9))
 
     cd = bpy.data.cameras.new("camera")

@@ -98,15 +98,9 @@ def build(scene, args):
     block.name = "focus_block"
     block.data.materials.append(block_mat)
 
-    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=5, radius=0.45, location=(-1.1, 1.6, 0.45))
-    sph = common.make_flat(bpy.context.active_object)
-    sph.name = "chrome_sphere"
-    sph.data.materials.append(chrome)
+    common.ico_sphere("chrome_sphere", 0.45, (-1.1, 1.6, 0.45), chrome, subdivisions=5)
 
-    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=0.25, location=(0.6, -1.6, 0.25))
-    near = common.make_flat(bpy.context.active_object)
-    near.name = "near_sphere"
-    near.data.materials.append(wall_mat)
+    common.ico_sphere("near_sphere", 0.25, (0.6, -1.6, 0.25), wall_mat)
 
     cd = bpy.data.cameras.new("camera")
     cd.lens = 50.0
