@@ -14,8 +14,6 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
-#include <fstream>
-#include <iterator>
 #include <memory>
 #include <random>
 #include <string>
@@ -23,6 +21,7 @@
 #include <vector>
 
 #include "../pipeline/src/network/conv.hpp"
+#include "proden/io/network_file.hpp"
 #include "proden/network/pdnet.hpp"
 #include "sgemm.hpp"
 
@@ -113,12 +112,7 @@ int main(int argc, char** argv) {
     nets.emplace_back("random w" + std::to_string(w),
                       std::make_shared<const PdNet>(random_weights(w, 42)));
   }
-  for (const auto& path : weight_files) {
-    std::ifstream f(path, std::ios::binary);
-    const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(f)),
-                                           std::istreambuf_iterator<char>());
-    nets.emplace_back(path, std::make_shared<const PdNet>(parse_weights(bytes, path), path));
-  }
+  for (const auto& path : weight_files) nets.emplace_back(path, io::load_network(path));
 
   // Synthetic inputs in the ranges the mixer sees (values do not change the work done).
   std::mt19937 rng(1);

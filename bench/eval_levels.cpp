@@ -19,9 +19,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <iostream>
-#include <iterator>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -29,9 +27,9 @@
 #include <vector>
 
 #include "proden/accumulator.hpp"
+#include "proden/io/network_file.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/metrics.hpp"
-#include "proden/network/builtin.hpp"
 #include "proden/progressive.hpp"
 
 namespace fs = std::filesystem;
@@ -147,14 +145,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   std::unique_ptr<Mixer> mixer;
   if (mixer_kind == "network") {
-    std::shared_ptr<const network::PdNet> net = network::builtin_network();
-    if (!weights.empty()) {
-      std::ifstream wf(weights, std::ios::binary);
-      const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(wf)),
-                                             std::istreambuf_iterator<char>());
-      net = std::make_shared<const network::PdNet>(network::parse_weights(bytes, weights), weights);
-    }
-    mixer = std::make_unique<network::NetworkMixer>(net);
+    mixer = std::make_unique<network::NetworkMixer>(io::load_network(weights));
   }
   po.t_test = !no_ttest;
   po.ttest.dof_correction = !no_dof;

@@ -4,17 +4,15 @@
 
 #include <chrono>
 #include <cstdio>
-#include <fstream>
 #include <iostream>
-#include <iterator>
 
 #include "cli/progress.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/error.hpp"
 #include "proden/io/image_writer.hpp"
+#include "proden/io/network_file.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/metrics.hpp"
-#include "proden/network/builtin.hpp"
 #include "proden/protocol/json.hpp"
 
 #ifndef PRODEN_VERSION
@@ -74,15 +72,6 @@ Accumulated accumulate(const std::vector<std::string>& files, const InputOptions
   return a;
 }
 
-std::shared_ptr<const network::PdNet> load_network(const std::string& path) {
-  if (path.empty()) return network::builtin_network();
-  std::ifstream f(path, std::ios::binary);
-  if (!f) throw network::WeightsError(path + ": cannot be opened");
-  const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(f)),
-                                         std::istreambuf_iterator<char>());
-  return std::make_shared<const network::PdNet>(network::parse_weights(bytes, path), path);
-}
-
 }  // namespace
 
 int run_denoise(const DenoiseOptions& o) {
@@ -92,7 +81,7 @@ int run_denoise(const DenoiseOptions& o) {
   std::string weights_source;
   if (o.mixer == "network") {
     try {
-      auto net = load_network(o.weights);
+      auto net = io::load_network(o.weights);
       weights_source = net->source();
       mixer = std::make_unique<network::NetworkMixer>(std::move(net));
     } catch (const network::WeightsError& e) {
