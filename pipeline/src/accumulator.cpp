@@ -83,11 +83,12 @@ std::size_t FrameAccumulator::dropped_samples() const {
 }
 
 std::size_t FrameAccumulator::bytes_per_pixel(Layout layout) {
-  // Two halves: weight (double), pass count (uint32), RGB mean and M2 (double).
+  // Two halves: weight (double), pass count (uint32), RGB mean and M2 (double). Features: a mean
+  // per half and one M2 (double) per channel.
   std::size_t b = 2 * (sizeof(double) + sizeof(std::uint32_t) + 3 * 2 * sizeof(double));
-  if (layout.albedo) b += 3 * 2 * sizeof(double);
-  if (layout.normal) b += 3 * 2 * sizeof(double);
-  if (layout.depth) b += 1 * 2 * sizeof(double);
+  if (layout.albedo) b += 3 * 3 * sizeof(double);
+  if (layout.normal) b += 3 * 3 * sizeof(double);
+  if (layout.depth) b += 1 * 3 * sizeof(double);
   if (layout.variance) b += 3 * sizeof(double);
   return b;
 }
@@ -138,17 +139,20 @@ void FrameAccumulator::check(const Pass& pass, const std::string& name) const {
 void FrameAccumulator::initialise(const Pass& pass) {
   // Build into locals first so an allocation failure leaves *this untouched.
   const std::size_t n = static_cast<std::size_t>(pass.width()) * pass.height();
+  const Layout layout = pass.layout();
   std::array<Half, 2> halves;
   for (auto& h : halves) {
     h.weight.assign(n, 0.0);
     h.count.assign(n, 0);
     h.colour.reset(3, n);
+    if (layout.albedo) h.albedo.assign(3 * n, 0.0);
+    if (layout.normal) h.normal.assign(3 * n, 0.0);
+    if (layout.depth) h.depth.assign(n, 0.0);
   }
-  const Layout layout = pass.layout();
-  Moments albedo, normal, depth;
-  if (layout.albedo) albedo.reset(3, n);
-  if (layout.normal) normal.reset(3, n);
-  if (layout.depth) depth.reset(1, n);
+  FeatureSpread albedo, normal, depth;
+  if (layout.albedo) albedo = {3, std::vector<double>(3 * n, 0.0)};
+  if (layout.normal) normal = {3, std::vector<double>(3 * n, 0.0)};
+  if (layout.depth) depth = {1, std::vector<double>(n, 0.0)};
   std::vector<double> rv;
   if (layout.variance) rv.assign(3 * n, 0.0);
 
@@ -159,6 +163,7 @@ void FrameAccumulator::initialise(const Pass& pass) {
   albedo_ = std::move(albedo);
   normal_ = std::move(normal);
   depth_ = std::move(depth);
+  feature_halves_ = true;
   renderer_variance_ = std::move(rv);
 }
 
@@ -175,6 +180,8 @@ AddResult FrameAccumulator::add(const Pass& pass, const std::string& name) {
   const std::size_t n = pixels();
   Half& half = halves_[static_cast<std::size_t>(record.half)];
   const Half& other = halves_[static_cast<std::size_t>(1 - record.half)];
+  const Half& a = halves_[0];
+  const Half& b = halves_[1];
   const double w = pass.spp;
   tbb::combinable<std::size_t> dropped_count([] { return std::size_t{0}; });
   tbb::combinable<std::size_t> sanitized_count([] { return std::size_t{0}; });
@@ -203,17 +210,27 @@ AddResult FrameAccumulator::add(const Pass& pass, const std::string& name) {
         ++dropped;
         continue;
       }
-      const double w_total = half.weight[p] + other.weight[p] + w;
-      auto feature = [&](Moments& m, const Image& img) {
-        for (int c = 0; c < m.channels; ++c) {
-          update(m, c, p, n, sanitize_feature(img.plane(c)[p], sanitized), w, w_total);
+      const double w_old = half.weight[p] + other.weight[p];
+      const double w_total = w_old + w;
+      const double w_half = half.weight[p] + w;
+      // Features: the half's Welford mean, and M2 over all passes around the full mean (the
+      // combination of the halves' means before this pass).
+      auto feature = [&](FeatureSpread& s, std::vector<double> Half::*mean, const Image& img) {
+        for (int c = 0; c < s.channels; ++c) {
+          const std::size_t i = static_cast<std::size_t>(c) * n + p;
+          const double x = sanitize_feature(img.plane(c)[p], sanitized);
+          const double full =
+              w_old > 0.0 ? (a.weight[p] * (a.*mean)[i] + b.weight[p] * (b.*mean)[i]) / w_old : 0.0;
+          const double delta = x - full;
+          s.m2[i] += w * delta * (x - (full + delta * (w / w_total)));
+          double& hm = (half.*mean)[i];
+          hm += (x - hm) * (w / w_half);
         }
       };
-      if (layout_.albedo) feature(albedo_, pass.albedo);
-      if (layout_.normal) feature(normal_, pass.normal);
-      if (layout_.depth) feature(depth_, pass.depth);
+      if (layout_.albedo) feature(albedo_, &Half::albedo, pass.albedo);
+      if (layout_.normal) feature(normal_, &Half::normal, pass.normal);
+      if (layout_.depth) feature(depth_, &Half::depth, pass.depth);
 
-      const double w_half = half.weight[p] + w;
       for (int c = 0; c < 3; ++c) update(half.colour, c, p, n, pass.colour.plane(c)[p], w, w_half);
       half.weight[p] = w_half;
       half.count[p] += 1;
@@ -361,25 +378,37 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
   }
 
   if (options.features) {
-    auto features = [&](const Moments& m, Image& mean, Image& var) {
-      if (m.channels == 0) return;
-      mean = Image(width_, height_, m.channels);
-      var = Image(width_, height_, m.channels);
+    const bool halves = !e.half_mean[0].empty() && feature_halves_;
+    auto features = [&](const FeatureSpread& s, std::vector<double> Half::*mean_of, Image& mean,
+                        Image& var, std::array<Image, 2>& half_means) {
+      if (s.channels == 0) return;
+      mean = Image(width_, height_, s.channels);
+      var = Image(width_, height_, s.channels);
+      if (halves) {
+        for (auto& h : half_means) h = Image(width_, height_, s.channels);
+      }
+      const std::vector<double>& ma = a.*mean_of;
+      const std::vector<double>& mb = b.*mean_of;
       parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
         for (std::size_t p = begin; p < end; ++p) {
-          const double w = a.weight[p] + b.weight[p];
+          const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
           const std::uint32_t k = a.count[p] + b.count[p];
-          for (int c = 0; c < m.channels; ++c) {
+          for (int c = 0; c < s.channels; ++c) {
             const std::size_t i = static_cast<std::size_t>(c) * n + p;
-            mean.plane(c)[p] = to_float(m.mean[i]);
-            var.plane(c)[p] = k >= 2 ? to_float(std::max(m.m2[i], 0.0) / (k - 1) / w) : 0.0f;
+            const double m = w > 0.0 ? (wa * ma[i] + wb * mb[i]) / w : 0.0;
+            mean.plane(c)[p] = to_float(m);
+            var.plane(c)[p] = k >= 2 ? to_float(std::max(s.m2[i], 0.0) / (k - 1) / w) : 0.0f;
+            if (halves) {  // a half without a sample here falls back to the full mean
+              half_means[0].plane(c)[p] = to_float(wa > 0.0 ? ma[i] : m);
+              half_means[1].plane(c)[p] = to_float(wb > 0.0 ? mb[i] : m);
+            }
           }
         }
       });
     };
-    features(albedo_, e.albedo, e.albedo_variance);
-    features(normal_, e.normal, e.normal_variance);
-    features(depth_, e.depth, e.depth_variance);
+    features(albedo_, &Half::albedo, e.albedo, e.albedo_variance, e.half_albedo);
+    features(normal_, &Half::normal, e.normal, e.normal_variance, e.half_normal);
+    features(depth_, &Half::depth, e.depth, e.depth_variance, e.half_depth);
   }
   return e;
 }
@@ -393,11 +422,13 @@ std::uint64_t FrameAccumulator::state_digest() const {
     add(half.count);
     add(half.colour.mean);
     add(half.colour.m2);
+    add(half.albedo);
+    add(half.normal);
+    add(half.depth);
   }
-  for (const Moments* m : {&albedo_, &normal_, &depth_}) {
-    add(m->mean);
-    add(m->m2);
-  }
+  for (const FeatureSpread* s : {&albedo_, &normal_, &depth_}) add(s->m2);
+  const int feature_halves = feature_halves_ ? 1 : 0;
+  h = hash_span(std::span<const int>(&feature_halves, 1), h);
   add(renderer_variance_);
   for (const auto& r : history_) {
     add(r.name);

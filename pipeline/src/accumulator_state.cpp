@@ -1,12 +1,18 @@
 // Binary (de)serialisation of FrameAccumulator, so a daemon can persist a frame's accumulated
 // state and resume after a restart or crash with bit-identical statistics.
 //
-// Layout (host byte order, which is little-endian on every platform proden supports):
-//   "PRDNACC" + version byte, u32 width, u32 height, u8 layout flags,
-//   per half: vec<f64> weight, vec<u32> count, moments; moments albedo, normal, depth;
-//   vec<f64> renderer variance; u64 history size, per record: str name, f64 spp, i32 half,
-//   u64 fingerprint, u64 dropped, u64 sanitized; trailing u64 hash of everything before it.
-// vec<T> = u64 length + raw values; moments = i32 channels + vec mean + vec m2.
+// Layout of version 2 (host byte order, which is little-endian on every platform proden supports):
+//   "PRDNACC" + version byte, u32 width, u32 height, u8 layout flags, u8 feature halves (0/1),
+//   per half: vec<f64> weight, vec<u32> count, moments, vec<f64> albedo, normal, depth means;
+//   spread albedo, normal, depth; vec<f64> renderer variance; u64 history size, per record:
+//   str name, f64 spp, i32 half, u64 fingerprint, u64 dropped, u64 sanitized; trailing u64 hash
+//   of everything before it.
+// vec<T> = u64 length + raw values; moments = i32 channels + vec mean + vec m2; spread = i32
+// channels + vec m2.
+// Version 1 (still read: daemons have such states on disk) had no feature halves byte, no
+// per-half feature means, and moments (mean and M2 over all passes) for each feature. It loads
+// with both halves' feature means set to that mean (so the full mean is unchanged) and
+// feature_halves() false: the frame never reports feature halves (docs/nfor.md, fallback).
 #include <cstring>
 #include <type_traits>
 
@@ -17,7 +23,8 @@
 namespace proden {
 namespace {
 
-constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'A', 'C', 'C', '\x01'};
+constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'A', 'C', 'C', '\x02'};
+constexpr std::uint8_t kVersion1 = 1;
 constexpr std::uint64_t kSeed = 0x61636373746174;  // "accstat"
 
 class Writer {
@@ -92,19 +99,21 @@ std::vector<std::uint8_t> FrameAccumulator::serialize() const {
       static_cast<std::uint8_t>((layout_.albedo ? 1 : 0) | (layout_.normal ? 2 : 0) |
                                 (layout_.depth ? 4 : 0) | (layout_.variance ? 8 : 0));
   w.put(flags);
-  auto moments = [&w](const Moments& m) {
-    w.put<std::int32_t>(m.channels);
-    w.vec(m.mean);
-    w.vec(m.m2);
-  };
+  w.put<std::uint8_t>(feature_halves_ ? 1 : 0);
   for (const auto& h : halves_) {
     w.vec(h.weight);
     w.vec(h.count);
-    moments(h.colour);
+    w.put<std::int32_t>(h.colour.channels);
+    w.vec(h.colour.mean);
+    w.vec(h.colour.m2);
+    w.vec(h.albedo);
+    w.vec(h.normal);
+    w.vec(h.depth);
   }
-  moments(albedo_);
-  moments(normal_);
-  moments(depth_);
+  for (const FeatureSpread* f : {&albedo_, &normal_, &depth_}) {
+    w.put<std::int32_t>(f->channels);
+    w.vec(f->m2);
+  }
   w.vec(renderer_variance_);
   w.put<std::uint64_t>(history_.size());
   for (const auto& r : history_) {
@@ -124,8 +133,9 @@ FrameAccumulator FrameAccumulator::deserialize(std::span<const std::uint8_t> blo
   if (std::memcmp(blob.data(), kMagic, sizeof(kMagic) - 1) != 0) {
     Reader::fail("not a proden frame state (bad magic)");
   }
-  if (blob[sizeof(kMagic) - 1] != static_cast<std::uint8_t>(kMagic[sizeof(kMagic) - 1])) {
-    Reader::fail("unsupported frame state version " + std::to_string(blob[sizeof(kMagic) - 1]));
+  const std::uint8_t version = blob[sizeof(kMagic) - 1];
+  if (version != static_cast<std::uint8_t>(kMagic[sizeof(kMagic) - 1]) && version != kVersion1) {
+    Reader::fail("unsupported frame state version " + std::to_string(version));
   }
   const std::size_t body = blob.size() - sizeof(std::uint64_t);
   std::uint64_t stored = 0;
@@ -143,22 +153,54 @@ FrameAccumulator FrameAccumulator::deserialize(std::span<const std::uint8_t> blo
   const auto flags = r.get<std::uint8_t>();
   if (flags > 15) Reader::fail("bad layout flags in frame state");
   a.layout_ = {(flags & 1) != 0, (flags & 2) != 0, (flags & 4) != 0, (flags & 8) != 0};
+  if (version != kVersion1) {
+    const auto halves = r.get<std::uint8_t>();
+    if (halves > 1) Reader::fail("bad feature halves flag in frame state");
+    a.feature_halves_ = halves == 1;
+  }
   const std::size_t n = a.pixels();
-  auto moments = [&r, n](Moments& m, int expected_channels) {
-    m.channels = r.get<std::int32_t>();
-    if (m.channels != expected_channels) Reader::fail("inconsistent channels in frame state");
+  auto channels = [&r](int expected) {
+    const auto c = r.get<std::int32_t>();
+    if (c != expected) Reader::fail("inconsistent channels in frame state");
+    return c;
+  };
+  auto moments = [&r, n, &channels](Moments& m, int expected_channels) {
+    m.channels = channels(expected_channels);
     const std::size_t len = n * static_cast<std::size_t>(m.channels);
     m.mean = r.vec<double>(len);
     m.m2 = r.vec<double>(len);
   };
+  const int alb = a.layout_.albedo ? 3 : 0, nrm = a.layout_.normal ? 3 : 0;
+  const int dep = a.layout_.depth ? 1 : 0;
+  auto len = [n](int ch) { return n * static_cast<std::size_t>(ch); };
   for (auto& h : a.halves_) {
     h.weight = r.vec<double>(n);
     h.count = r.vec<std::uint32_t>(n);
     moments(h.colour, n > 0 ? 3 : 0);
+    if (version != kVersion1) {
+      h.albedo = r.vec<double>(len(alb));
+      h.normal = r.vec<double>(len(nrm));
+      h.depth = r.vec<double>(len(dep));
+    }
   }
-  moments(a.albedo_, a.layout_.albedo ? 3 : 0);
-  moments(a.normal_, a.layout_.normal ? 3 : 0);
-  moments(a.depth_, a.layout_.depth ? 1 : 0);
+  if (version == kVersion1) {
+    // Features over all passes only: both halves take the full mean, M2 is kept.
+    auto v1_feature = [&](FeatureSpread& s, std::vector<double> Half::*mean, int ch) {
+      Moments m;
+      moments(m, ch);
+      s = {m.channels, std::move(m.m2)};
+      for (auto& h : a.halves_) h.*mean = m.mean;
+    };
+    v1_feature(a.albedo_, &Half::albedo, alb);
+    v1_feature(a.normal_, &Half::normal, nrm);
+    v1_feature(a.depth_, &Half::depth, dep);
+    a.feature_halves_ = false;
+  } else {
+    for (auto [s, ch] : {std::pair{&a.albedo_, alb}, {&a.normal_, nrm}, {&a.depth_, dep}}) {
+      s->channels = channels(ch);
+      s->m2 = r.vec<double>(len(ch));
+    }
+  }
   a.renderer_variance_ = r.vec<double>(a.layout_.variance ? 3 * n : 0);
   const auto records = r.get<std::uint64_t>();
   if (records > (r.bytes.size() - r.pos) / 44) Reader::fail("truncated frame state history");

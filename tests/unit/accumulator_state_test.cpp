@@ -1,5 +1,9 @@
-// FrameAccumulator persistence: serialize/deserialize round trips, corrupt blobs are refused.
+// FrameAccumulator persistence: serialize/deserialize round trips, corrupt blobs are refused,
+// and states written by the previous format version still load.
 #include <catch2/catch.hpp>
+
+#include <fstream>
+#include <iterator>
 
 #include "proden/accumulator.hpp"
 #include "proden/error.hpp"
@@ -55,4 +59,87 @@ TEST_CASE("truncated or corrupt accumulator state is refused", "[accumulator][st
   auto version = blob;
   version[7] = 99;
   CHECK_THROWS_AS(FrameAccumulator::deserialize(version), InputError);
+}
+
+namespace {
+
+// The passes of tests/data/accumulator_v1.bin, a state written by format v1 (before feature
+// halves): 5x4, albedo + normal + depth, 3 passes of 2, 3 and 4 spp.
+float fixture_value(int k, int x, int y, int c, int salt) {
+  return 0.1f + 0.01f * static_cast<float>((x * 7 + y * 13 + k * 29 + c * 3 + salt * 5) % 17);
+}
+Pass fixture_pass(int k) {
+  Pass p;
+  p.spp = 2.0 + k;
+  p.colour = Image(5, 4, 3);
+  p.albedo = Image(5, 4, 3);
+  p.normal = Image(5, 4, 3);
+  p.depth = Image(5, 4, 1);
+  for (int y = 0; y < 4; ++y) {
+    for (int x = 0; x < 5; ++x) {
+      for (int c = 0; c < 3; ++c) {
+        p.colour.at(x, y, c) = fixture_value(k, x, y, c, 0);
+        p.albedo.at(x, y, c) = fixture_value(k, x, y, c, 1);
+        p.normal.at(x, y, c) = fixture_value(k, x, y, c, 2) - 0.5f;
+      }
+      p.depth.at(x, y, 0) = 1.0f + fixture_value(k, x, y, 0, 3);
+    }
+  }
+  return p;
+}
+
+std::vector<std::uint8_t> read_fixture(const std::string& name) {
+  std::ifstream in(std::string(PRODEN_SOURCE_DIR) + "/tests/data/" + name, std::ios::binary);
+  REQUIRE(in);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+void check_images_close(const Image& a, const Image& b, double tol) {
+  REQUIRE(a.same_size(b));
+  REQUIRE(a.channels() == b.channels());
+  for (std::size_t i = 0; i < a.data().size(); ++i) {
+    INFO("value " << i);
+    CHECK(a.data()[i] == Approx(b.data()[i]).margin(tol));
+  }
+}
+
+}  // namespace
+
+TEST_CASE("a version-1 state (no feature halves) still loads and keeps accumulating",
+          "[accumulator][state]") {
+  const auto blob = read_fixture("accumulator_v1.bin");
+  REQUIRE(blob[7] == 1);  // the fixture really is version 1
+  FrameAccumulator old = FrameAccumulator::deserialize(blob);
+  CHECK(old.passes() == 3);
+  CHECK(old.layout() == (Layout{true, true, true, false}));
+  CHECK_FALSE(old.feature_halves());
+  FrameAccumulator fresh;
+  for (int k = 0; k < 3; ++k) fresh.add(fixture_pass(k), "v1pass" + std::to_string(k));
+  CHECK(fresh.feature_halves());
+
+  // Same statistics as accumulating the same passes today, but no feature halves.
+  const FrameEstimate eo = old.estimate(), ef = fresh.estimate();
+  check_images_close(eo.mean, ef.mean, 0.0);
+  check_images_close(eo.variance, ef.variance, 0.0);
+  check_images_close(eo.albedo, ef.albedo, 1e-7);
+  check_images_close(eo.normal_variance, ef.normal_variance, 1e-9);
+  check_images_close(eo.depth, ef.depth, 1e-7);
+  REQUIRE_FALSE(eo.half_mean[0].empty());  // colour halves survive v1
+  CHECK(eo.half_albedo[0].empty());
+  CHECK(eo.half_depth[1].empty());
+  REQUIRE_FALSE(ef.half_albedo[0].empty());
+
+  // It keeps accumulating (feature means and spreads stay right) and saves as version 2
+  // without ever claiming feature halves.
+  old.add(fixture_pass(3), "v1pass3");
+  fresh.add(fixture_pass(3), "v1pass3");
+  const FrameEstimate eo4 = old.estimate(), ef4 = fresh.estimate();
+  check_images_close(eo4.normal, ef4.normal, 1e-7);
+  check_images_close(eo4.albedo_variance, ef4.albedo_variance, 1e-9);
+  CHECK(eo4.half_normal[0].empty());
+  const auto blob2 = old.serialize();
+  CHECK(blob2[7] == 2);
+  const FrameAccumulator again = FrameAccumulator::deserialize(blob2);
+  CHECK_FALSE(again.feature_halves());
+  CHECK(again.state_digest() == old.state_digest());
 }

@@ -158,8 +158,49 @@ TEST_CASE("feature means and renderer variance accumulate with spp weights", "[a
   CHECK(e.variance.at(3, 2, 1) == Approx(var / (N * N)).epsilon(1e-6));
   CHECK_FALSE(e.normal.empty());
   CHECK(e.depth.channels() == 1);
-  CHECK(FrameAccumulator::bytes_per_pixel(all) == 256);
+  CHECK(FrameAccumulator::bytes_per_pixel(all) == 312);
   CHECK(FrameAccumulator::bytes_per_pixel(Layout{}) == 120);
+}
+
+TEST_CASE("feature halves: per-half means, full mean and spread over all passes",
+          "[accumulator]") {
+  Layout feats{true, true, true, false};
+  FrameAccumulator f;
+  std::vector<Pass> ps;
+  for (int k = 0; k < 5; ++k) ps.push_back(test::make_pass(4, 3, 1 + k, 200 + k, feats));
+  for (int k = 0; k < 5; ++k) f.add(ps[k], "p" + std::to_string(k));
+  const FrameEstimate e = f.estimate();
+  REQUIRE_FALSE(e.half_albedo[0].empty());
+  REQUIRE_FALSE(e.half_normal[1].empty());
+  REQUIRE(e.half_depth[1].channels() == 1);
+  // Half A holds passes 0, 2, 4 and half B passes 1, 3 (spp 1..5).
+  auto weighted = [&](std::initializer_list<int> ks, auto value) {
+    double s = 0, n = 0;
+    for (int k : ks) {
+      s += ps[k].spp * value(ps[k]);
+      n += ps[k].spp;
+    }
+    return s / n;
+  };
+  auto alb = [](const Pass& p) { return static_cast<double>(p.albedo.at(2, 1, 2)); };
+  auto dep = [](const Pass& p) { return static_cast<double>(p.depth.at(3, 2, 0)); };
+  CHECK(e.half_albedo[0].at(2, 1, 2) == Approx(weighted({0, 2, 4}, alb)).epsilon(1e-6));
+  CHECK(e.half_albedo[1].at(2, 1, 2) == Approx(weighted({1, 3}, alb)).epsilon(1e-6));
+  CHECK(e.half_depth[1].at(3, 2, 0) == Approx(weighted({1, 3}, dep)).epsilon(1e-6));
+  CHECK(e.albedo.at(2, 1, 2) == Approx(weighted({0, 1, 2, 3, 4}, alb)).epsilon(1e-6));
+  // Variance of the feature mean over all 5 passes (spp-weighted, K - 1 = 4 dof).
+  const double m = weighted({0, 1, 2, 3, 4}, dep);
+  double m2 = 0, n = 0;
+  for (const Pass& p : ps) {
+    m2 += p.spp * (dep(p) - m) * (dep(p) - m);
+    n += p.spp;
+  }
+  CHECK(e.depth_variance.at(3, 2, 0) == Approx(m2 / 4 / n).epsilon(1e-5));
+  // No halves requested, or one pass only: no feature halves either.
+  CHECK(f.estimate({.halves = false}).half_normal[0].empty());
+  FrameAccumulator one;
+  one.add(ps[0], "only");
+  CHECK(one.estimate().half_albedo[0].empty());
 }
 
 TEST_CASE("NaN/Inf samples are dropped per pixel and counted, never reaching the mean",

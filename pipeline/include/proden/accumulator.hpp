@@ -5,8 +5,10 @@
 // keeping a weighted Welford mean and M2 = sum_k n_k (x_k - mean)^2 with weights n_k = spp. The
 // full frame is the exact (Chan) combination of the halves, so it costs no extra memory. With K
 // passes and N = sum n_k samples at a pixel, sigma^2 = M2 / (K - 1) is the unbiased per-sample
-// variance and Var[x] = sigma^2 / N (= s^2 / K for equal spp). Memory per pixel: see
-// bytes_per_pixel().
+// variance and Var[x] = sigma^2 / N (= s^2 / K for equal spp). Features (albedo, normal, depth)
+// keep a weighted mean per half (NFOR's feature prefilter cross-filters them, docs/nfor.md) and
+// one M2 over all passes; their full mean is again the Chan combination of the halves. Memory per
+// pixel: see bytes_per_pixel().
 //
 // Non-finite policy: a pass's pixel whose colour (or renderer variance) is NaN/Inf, or whose
 // variance is negative, is dropped from that pass (all channels, counted in AddResult and
@@ -53,6 +55,9 @@ struct FrameEstimate {
   Image variance;                      // Var[x]: variance of the mean, RGB
   std::array<Image, 2> half_mean;      // x_A, x_B (empty unless both halves hold passes)
   std::array<Image, 2> half_variance;  // Var[x_A], Var[x_B]
+  // Feature means per half (each empty unless half_mean is set, the frame carries the feature and
+  // the state has feature halves: a state restored from format v1 has none).
+  std::array<Image, 2> half_albedo, half_normal, half_depth;
   Image albedo, normal, depth;         // feature means (empty where the frame has none)
   Image albedo_variance, normal_variance, depth_variance;  // variance of the feature means
   Image passes;  // 1 channel: passes that contributed to each pixel
@@ -95,6 +100,9 @@ class FrameAccumulator {
   // Bytes of accumulated state per pixel for a layout (the documented memory cost).
   static std::size_t bytes_per_pixel(Layout layout);
   std::size_t state_bytes() const;
+  // False for a state restored from format v1, which kept features only over all passes: such a
+  // frame never gets feature halves (its earlier passes' split is lost).
+  bool feature_halves() const { return feature_halves_; }
 
   FrameEstimate estimate(const EstimateOptions& options = {}) const;
 
@@ -118,6 +126,12 @@ class FrameAccumulator {
     std::vector<double> weight;        // sum of spp per pixel
     std::vector<std::uint32_t> count;  // passes per pixel
     Moments colour;
+    std::vector<double> albedo, normal, depth;  // feature means, planar (empty without the feature)
+  };
+  // M2 of a feature over all passes (its mean is the combination of the halves' means).
+  struct FeatureSpread {
+    int channels = 0;
+    std::vector<double> m2;
   };
 
   void initialise(const Pass& pass);
@@ -127,7 +141,8 @@ class FrameAccumulator {
   int height_ = 0;
   Layout layout_;
   std::array<Half, 2> halves_;
-  Moments albedo_, normal_, depth_;
+  FeatureSpread albedo_, normal_, depth_;
+  bool feature_halves_ = true;
   std::vector<double> renderer_variance_;  // sum_k n_k^2 var_k, planar RGB
   std::vector<PassRecord> history_;
 };
