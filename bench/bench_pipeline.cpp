@@ -10,9 +10,7 @@
 //
 //   proden_bench_pipeline [--width W --height H] [--no-4k] [--no-mc] [--no-io] [--threads N]
 //                         [--cycles-spp-seconds S] [--json FILE] [--tmp DIR]
-#include <tbb/blocked_range2d.h>
 #include <tbb/global_control.h>
-#include <tbb/parallel_for.h>
 
 #include <sys/resource.h>
 
@@ -25,7 +23,6 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
-#include <random>
 #include <string>
 #include <thread>
 #include <vector>
@@ -35,6 +32,7 @@
 #include "proden/io/pass_reader.hpp"
 #include "proden/progressive.hpp"
 #include "sgemm.hpp"
+#include "bench_common.hpp"
 
 using namespace proden;
 namespace fs = std::filesystem;
@@ -64,53 +62,14 @@ double cpu_seconds() {
          1e-6 * static_cast<double>(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
 }
 
-// Smooth scene-like signal + per-pass Gaussian noise; features piecewise constant.
-Pass synthetic_pass(int w, int h, int k, double spp) {
-  std::mt19937 rng(static_cast<unsigned>(1000 + k));
-  std::normal_distribution<float> n(0.0f, 1.0f);
-  Pass p;
-  p.spp = spp;
-  p.colour = Image(w, h, 3);
-  p.albedo = Image(w, h, 3);
-  p.normal = Image(w, h, 3);
-  p.depth = Image(w, h, 1);
-  for (int y = 0; y < h; ++y) {
-    for (int x = 0; x < w; ++x) {
-      const bool right = x > w / 2;
-      const float base = 0.3f + 0.2f * std::sin(0.05f * static_cast<float>(x)) +
-                         0.1f * std::cos(0.03f * static_cast<float>(y)) + (right ? 0.3f : 0.0f);
-      const float sd = std::sqrt(0.08f * base);
-      for (int c = 0; c < 3; ++c) {
-        p.colour.at(x, y, c) = std::max(0.0f, base + sd * n(rng));
-        p.albedo.at(x, y, c) = right ? 0.8f : 0.4f;
-        p.normal.at(x, y, c) = c == 2 ? -1.0f : 0.0f;
-      }
-      p.depth.at(x, y, 0) = right ? 2.0f : 5.0f;
-    }
-  }
-  return p;
-}
+using bench::synthetic_pass;
 
 // The denoiser alone (no Jacobian), tiled and parallel like the pipeline: "one denoiser run".
 double denoise_only(const FrameEstimate& est, const PipelineOptions& po) {
   const NlMeansDenoiser nl(po.nlmeans);
   const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
-  Image y(din.width, din.height, 3);
-  const int t = po.tile;
   const auto t0 = Clock::now();
-  tbb::parallel_for(
-      tbb::blocked_range2d<int>(0, (din.height + t - 1) / t, 1, 0, (din.width + t - 1) / t, 1),
-      [&](const tbb::blocked_range2d<int>& r) {
-        for (int ty = r.rows().begin(); ty < r.rows().end(); ++ty) {
-          for (int tx = r.cols().begin(); tx < r.cols().end(); ++tx) {
-            const Rect rect{tx * t, ty * t, std::min(din.width, (tx + 1) * t),
-                            std::min(din.height, (ty + 1) * t)};
-            Buffer b(rect, 3);
-            nl.denoise(din, rect, b, nullptr);
-            store(b, rect, y);
-          }
-        }
-      });
+  bench::tiled_denoise(nl, din, po.tile);
   return since(t0);
 }
 

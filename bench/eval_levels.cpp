@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "proden/accumulator.hpp"
+#include "proden/denoise/nfor.hpp"
 #include "proden/io/network_file.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/metrics.hpp"
@@ -128,7 +129,7 @@ int main(int argc, char** argv) {
   app.add_option("--mixer-weight", weight)
       ->check(CLI::IsMember({"uniform", "variance", "relative"}));
   std::string den = "nlmeans";
-  app.add_option("--denoiser", den)->check(CLI::IsMember({"nlmeans", "gaussian"}));
+  app.add_option("--denoiser", den)->check(CLI::IsMember({"nlmeans", "gaussian", "nfor"}));
   app.add_option("--sigma", po.gaussian_sigma);
   app.add_option("--rule", rule)->check(CLI::IsMember({"stein", "inverse-error"}));
   app.add_option("--divergence", divergence)->check(CLI::IsMember({"auto", "analytic", "mc"}));
@@ -143,6 +144,8 @@ int main(int argc, char** argv) {
   app.add_option("--mixer", mixer_kind)->check(CLI::IsMember({"closed-form", "network"}));
   app.add_option("--weights", weights, "Network weights (.pdnw; default: built-in)");
   CLI11_PARSE(app, argc, argv);
+  std::unique_ptr<Denoiser> denoiser;  // nullptr: the pipeline's built-in choice
+  if (den == "nfor") denoiser = std::make_unique<NforDenoiser>();
   std::unique_ptr<Mixer> mixer;
   if (mixer_kind == "network") {
     mixer = std::make_unique<network::NetworkMixer>(io::load_network(weights));
@@ -204,12 +207,13 @@ int main(int argc, char** argv) {
   for (const auto& [level, files] : levels) {
     const auto t0 = std::chrono::steady_clock::now();
     const FrameAccumulator f = accumulate(files, !no_features);
-    const FrameEstimate est = f.estimate({.halves = false, .features = !no_features});
+    const FrameEstimate est = f.estimate({.halves = denoiser != nullptr, .features = !no_features});
     const auto t1 = std::chrono::steady_clock::now();
-    const PipelineResult r = run_pipeline(est, po, nullptr, mixer.get());
+    const PipelineResult r = run_pipeline(est, po, denoiser.get(), mixer.get());
     const double acc_s = std::chrono::duration<double>(t1 - t0).count();
     const double den_only_s =
-        po.denoiser == BuiltinDenoiser::nlmeans
+        denoiser ? r.timings.denoise  // whole-frame (NFOR): the wall time of its one run
+        : po.denoiser == BuiltinDenoiser::nlmeans
             ? denoise_only_seconds(est, po, nullptr)
             : r.timings.wall * r.timings.denoise /
                   std::max(1e-12, r.timings.denoise + r.timings.sure + r.timings.mixer +

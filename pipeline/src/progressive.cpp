@@ -63,6 +63,14 @@ Image box_mean(const Image& img, int r) {
   return out;
 }
 
+void copy_region(const Buffer& src, const Rect& region, Buffer& dst) {
+  for (int c = 0; c < dst.channels(); ++c) {
+    for (int y = region.y0; y < region.y1; ++y) {
+      for (int x = region.x0; x < region.x1; ++x) dst.at(x, y, c) = src.at(x, y, c);
+    }
+  }
+}
+
 bool all_zero(const Image& img) {
   const auto d = img.data();
   return std::all_of(d.begin(), d.end(), [](float v) { return v == 0.0f; });
@@ -85,6 +93,15 @@ DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, co
     din.normal_variance = view_of(frame.normal_variance);
     din.depth_variance = view_of(frame.depth_variance);
   }
+  for (std::size_t h = 0; h < 2; ++h) {
+    din.half_colour[h] = view_of(frame.half_mean[h]);
+    din.half_variance[h] = view_of(frame.half_variance[h]);
+    if (features) {
+      din.half_albedo[h] = view_of(frame.half_albedo[h]);
+      din.half_normal[h] = view_of(frame.half_normal[h]);
+      din.half_depth[h] = view_of(frame.half_depth[h]);
+    }
+  }
   return din;
 }
 
@@ -106,7 +123,8 @@ double estimated_result_mse(const Image& x, const Image& variance, const Pipelin
 }
 
 int pipeline_halo(const Denoiser& denoiser, const Mixer& mixer, const PipelineOptions& options) {
-  return denoiser.radius() + mixer.radius() + (options.t_test ? options.ttest.radius : 0);
+  const int den = denoiser.whole_frame() ? 0 : denoiser.radius();  // y comes from one full run
+  return den + mixer.radius() + (options.t_test ? options.ttest.radius : 0);
 }
 
 PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& options,
@@ -162,7 +180,7 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
 
   const DenoiseInputs din = denoise_inputs(frame, x, var, options.features && nlp.use_features);
   // Only a denoiser that reads features makes them inputs of this run.
-  const bool reads_features = &denoiser == &nlmeans;
+  const bool reads_features = &denoiser == &nlmeans || denoiser.reads_features();
   res.inputs = {reads_features && din.albedo.valid(), reads_features && din.normal.valid(),
                 reads_features && din.depth.valid(), false};
 
@@ -177,6 +195,26 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
   };
   tbb::combinable<Times> times;
 
+  // A whole-frame denoiser (NFOR) runs once over the full image, its divergence too (a
+  // Monte-Carlo probe would otherwise re-run it per tile); the tiles copy their part. Its stages
+  // are parallel inside, so their times are wall seconds, not the calling thread's CPU.
+  Buffer y_whole, div_whole;
+  if (denoiser.whole_frame()) {
+    const auto t0 = Clock::now();
+    y_whole = Buffer(image, 3);
+    Buffer dydx(analytic ? image : Rect{}, 3);
+    denoiser.denoise(din, image, y_whole, analytic ? &dydx : nullptr);
+    const auto t1 = Clock::now();
+    div_whole = Buffer(image, 3);
+    if (analytic) {
+      divergence_from_derivative(din.variance, dydx, image, div_whole);
+    } else {
+      divergence_monte_carlo(denoiser, din, image, y_whole, options.probes, div_whole);
+    }
+    times.local().denoise += seconds(t0, t1);
+    times.local().sure += seconds(t1, Clock::now());
+  }
+
   tbb::parallel_for(0, tiles_x * tiles_y, [&](int t) {
     Times& tm = times.local();
     const Rect inner = Rect{(t % tiles_x) * T, (t / tiles_x) * T, 0, 0};
@@ -186,9 +224,12 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
 
     const double t0 = thread_cpu();
     Buffer y(r_den, 3), dydx(r_den, 3), div(r_den, 3), sure_buf(r_den, 3);
-    denoiser.denoise(din, r_den, y, analytic ? &dydx : nullptr);
+    if (!denoiser.whole_frame()) denoiser.denoise(din, r_den, y, analytic ? &dydx : nullptr);
     const double t1 = thread_cpu();
-    if (analytic) {
+    if (denoiser.whole_frame()) {
+      copy_region(y_whole, r_den, y);
+      copy_region(div_whole, r_den, div);
+    } else if (analytic) {
       divergence_from_derivative(din.variance, dydx, r_den, div);
     } else {
       divergence_monte_carlo(denoiser, din, r_den, y, options.probes, div);

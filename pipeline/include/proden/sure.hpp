@@ -23,7 +23,9 @@ float probe_normal(std::uint64_t seed, int probe, int x, int y, int c);
 void divergence_from_derivative(const View& variance, const Buffer& dydx, const Rect& region,
                                 Buffer& div);
 
-// Monte-Carlo divergence of a black-box denoiser over `region`; `y` = F(x) there.
+// Monte-Carlo divergence of a black-box denoiser over `region`; `y` = F(x) there. With half
+// buffers in `in` it perturbs them too, consistently with x (a denoiser may read x only through
+// its halves, like NFOR: docs/nfor.md).
 void divergence_monte_carlo(const Denoiser& denoiser, const DenoiseInputs& in, const Rect& region,
                             const Buffer& y, const MonteCarloProbes& probes, Buffer& div);
 

@@ -3,6 +3,7 @@
 // progressive pipeline treats them uniformly and uses the Jacobian diagonal when one is offered.
 #pragma once
 
+#include <array>
 #include <string>
 
 #include "proden/region.hpp"
@@ -17,6 +18,12 @@ struct DenoiseInputs {
   View variance;              // Var[x], 3 channels
   View albedo, normal, depth;
   View albedo_variance, normal_variance, depth_variance;
+  // Half buffers A and B (passes alternate between them; docs/nfor.md): colour x_A, x_B and
+  // Var[x_A], Var[x_B] are valid when both halves hold passes (2 passes or more); the feature
+  // means per half are valid when, in addition, the frame carries that feature and its state
+  // kept feature halves (a state restored from format v1 did not).
+  std::array<View, 2> half_colour, half_variance;
+  std::array<View, 2> half_albedo, half_normal, half_depth;
 };
 
 class Denoiser {
@@ -27,6 +34,11 @@ class Denoiser {
   virtual int radius() const = 0;
   // True if denoise() can fill dydx with the Jacobian diagonal dy_p/dx_p per channel.
   virtual bool has_derivative() const = 0;
+  // True for a denoiser made of whole-image stages (NFOR): the pipeline calls denoise() once over
+  // the full image before its tiled stages, which then read y from that run (no denoiser halo).
+  virtual bool whole_frame() const { return false; }
+  // True if the denoiser reads the feature views (they are then inputs of the run's provenance).
+  virtual bool reads_features() const { return false; }
   // Computes y (and dydx when non-null and supported) over `out`, which must lie in the image.
   // y and dydx must be 3-channel buffers covering `out`.
   virtual void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const = 0;
