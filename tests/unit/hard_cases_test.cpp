@@ -1,7 +1,8 @@
 // Numerically hard frames through accumulation and the whole pipeline (with the closed-form and
-// the learned mixer): each must give finite output, alpha in [0, 1], a result between render and
-// denoised, and a denoised image inside the render's value range (the filter is a convex
-// combination).
+// the learned mixer, and with NFOR as the denoiser): each must give finite output, alpha in
+// [0, 1], a result between render and denoised, and a denoised image inside the render's value
+// range (NL-means is a convex combination; NFOR's regression may extrapolate, so its bound is
+// the range widened by the range itself).
 #include <catch2/catch.hpp>
 
 #include <cmath>
@@ -10,6 +11,7 @@
 #include <random>
 
 #include "proden/accumulator.hpp"
+#include "proden/denoise/nfor.hpp"
 #include "proden/network/builtin.hpp"
 #include "proden/progressive.hpp"
 
@@ -52,7 +54,7 @@ PipelineOptions small_options() {
   return o;
 }
 
-void check_sane(const FrameEstimate& e, const PipelineResult& r) {
+void check_sane(const FrameEstimate& e, const PipelineResult& r, bool convex = true) {
   REQUIRE(r.result.same_size(e.mean));
   float xmin = std::numeric_limits<float>::max(), xmax = -xmin;
   for (float v : e.mean.data()) {
@@ -69,21 +71,27 @@ void check_sane(const FrameEstimate& e, const PipelineResult& r) {
     REQUIRE(a >= 0.0f);
     REQUIRE(a <= 1.0f);
     const float tol = 1e-6f * std::max(std::abs(xmin), std::abs(xmax));
+    const float widen = convex ? 0.0f : xmax - xmin;
     REQUIRE(z >= std::min(x, y) - tol);
     REQUIRE(z <= std::max(x, y) + tol);
-    REQUIRE(y >= xmin - tol);
-    REQUIRE(y <= xmax + tol);
+    REQUIRE(y >= xmin - widen - tol);
+    REQUIRE(y <= xmax + widen + tol);
   }
 }
 
-// Runs the pipeline with the learned mixer and with the closed form (whose result is returned),
-// checking both.
+// Runs the pipeline with the learned mixer, with NFOR, and with the closed form and NL-means
+// (whose result is returned), checking all.
 PipelineResult run_checked(const FrameAccumulator& f, const PipelineOptions& o = small_options()) {
   const FrameEstimate e = f.estimate();
   static const network::NetworkMixer net(network::builtin_network());
   {
     INFO("learned mixer");
     check_sane(e, run_pipeline(e, o, nullptr, &net));
+  }
+  {
+    INFO("NFOR");
+    static const NforDenoiser nfor;
+    check_sane(e, run_pipeline(e, o, &nfor), false);
   }
   const PipelineResult r = run_pipeline(e, o);
   check_sane(e, r);

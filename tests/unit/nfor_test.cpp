@@ -10,7 +10,9 @@
 
 #include "../../pipeline/src/denoise/nfor_internal.hpp"
 #include "proden/denoise/nfor.hpp"
+#include "proden/accumulator.hpp"
 #include "proden/progressive.hpp"
+#include "test_support.hpp"
 
 using namespace proden;
 
@@ -289,4 +291,235 @@ TEST_CASE("NFOR denoises a noisy frame", "[nfor]") {
   INFO("SSE render " << ex << ", NL-means " << en << ", NFOR " << ey);
   CHECK(ey < 0.5 * ex);
   CHECK(ey < en);
+}
+
+namespace {
+
+// Mean squared error of an image against a truth.
+double mse(const Image& a, const Image& truth) {
+  double s = 0;
+  for (std::size_t i = 0; i < a.data().size(); ++i) {
+    const double d = static_cast<double>(a.data()[i]) - truth.data()[i];
+    s += d * d;
+  }
+  return s / static_cast<double>(a.data().size());
+}
+
+// The frame's features replaced: fn(x, y, albedo[3], normal[3], depth) for both halves.
+template <class Fn>
+void set_features(Frame& f, Fn fn) {
+  for (int y = 0; y < f.h; ++y) {
+    for (int x = 0; x < f.w; ++x) {
+      float a[3], n[3], d;
+      fn(x, y, a, n, d);
+      for (int i = 0; i < 2; ++i) {
+        for (int c = 0; c < 3; ++c) {
+          f.half_albedo[i].at(x, y, c) = a[c];
+          f.half_normal[i].at(x, y, c) = n[c];
+        }
+        f.half_depth[i].at(x, y, 0) = d;
+      }
+    }
+  }
+  f.combine();
+}
+
+}  // namespace
+
+TEST_CASE("rank-deficient windows: constant, collinear and degenerate features", "[nfor]") {
+  const Frame clean = noisy_frame(48, 40, 0.0f);
+  struct Case {
+    const char* name;
+    void (*features)(int, int, float*, float*, float&);
+  };
+  const Case cases[] = {
+      {"constant features",
+       [](int, int, float* a, float* n, float& d) {
+         a[0] = a[1] = a[2] = 0.5f;
+         n[0] = n[1] = 0.0f;
+         n[2] = 1.0f;
+         d = 3.0f;
+       }},
+      {"all-zero normals and albedo, depth 0",
+       [](int, int, float* a, float* n, float& d) {
+         for (int c = 0; c < 3; ++c) a[c] = n[c] = 0.0f;
+         d = 0.0f;
+       }},
+      {"collinear: normal = albedo = depth, one ramp",
+       [](int x, int, float* a, float* n, float& d) {
+         const float v = 0.02f * static_cast<float>(x);
+         for (int c = 0; c < 3; ++c) a[c] = n[c] = v;
+         d = v;
+       }},
+      {"sanitised infinities: normals +-1e10, background depth 1e10",
+       [](int x, int y, float* a, float* n, float& d) {
+         const bool bg = (x + y) % 7 == 0;
+         for (int c = 0; c < 3; ++c) {
+           a[c] = bg ? 0.0f : 0.4f;
+           n[c] = bg ? (c == 0 ? 1e10f : -1e10f) : 0.5f;
+         }
+         d = bg ? 1e10f : 2.0f;
+       }},
+  };
+  for (const Case& c : cases) {
+    INFO(c.name);
+    Frame f = noisy_frame(48, 40, 0.1f);
+    set_features(f, c.features);
+    for (const std::string& isa : nfor::isas_available()) {
+      INFO("build " << isa);
+      NforExtras ex;
+      ex.want_cross_validation = ex.want_hat = true;
+      const Image y = NforDenoiser(with_isa(isa)).run(f.inputs(), &ex);
+      require_finite(y);
+      require_finite(ex.cross_validation);
+      require_finite(ex.hat);
+      // Still a denoiser: the zeroth- (or lower-) order fit that remains averages noise away.
+      CHECK(mse(y, clean.colour) < 0.6 * mse(f.colour, clean.colour));
+    }
+  }
+}
+
+TEST_CASE("a black, noise-free background stays black", "[nfor]") {
+  // Left 80 columns: colour exactly 0 in every half (variance 0), Cycles-like background
+  // features (albedo 0, normal 0, depth 1e10); right: a noisy lit surface.
+  constexpr int kBlack = 80;
+  Frame f = noisy_frame(kBlack + 32, 32, 0.1f);
+  for (int y = 0; y < f.h; ++y) {
+    for (int x = 0; x < kBlack; ++x) {
+      for (int i = 0; i < 2; ++i) {
+        for (int c = 0; c < 3; ++c) {
+          f.half[i].at(x, y, c) = 0.0f;
+          f.half_var[i].at(x, y, c) = 0.0f;
+          f.half_albedo[i].at(x, y, c) = 0.0f;
+          f.half_normal[i].at(x, y, c) = 0.0f;
+        }
+        f.half_depth[i].at(x, y, 0) = 1e10f;
+      }
+    }
+  }
+  f.combine();
+  const Image y = NforDenoiser().run(f.inputs());
+  require_finite(y);
+  // Lit data reaches a pixel through a chain of windows: the first pass's fit (patch 3 +
+  // window 9) and scatter (9), the selection's smoothing (1 + 3), the second pass's fit and
+  // scatter (9 + 9): beyond 45 columns from the lit part the output is exactly 0.
+  double near_max = 0;
+  for (int py = 0; py < f.h; ++py) {
+    for (int px = 0; px < kBlack; ++px) {
+      for (int c = 0; c < 3; ++c) {
+        if (px < kBlack - 45) {
+          REQUIRE(y.at(px, py, c) == 0.0f);
+        } else {
+          near_max = std::max<double>(near_max, std::abs(y.at(px, py, c)));
+        }
+      }
+    }
+  }
+  // Near the lit part, a black pixel receives predictions of fits that cover lit pixels: they
+  // are weighted by how alike the patches are, so they stay small.
+  INFO("largest value in the black part near the lit one: " << near_max);
+  CHECK(near_max < 0.3);
+}
+
+TEST_CASE("1e6 fireflies stay local and finite", "[nfor]") {
+  Frame f = noisy_frame(128, 48, 0.05f);
+  // Two fireflies in half A only (one pass saw them), one in both; all within x < 32.
+  f.half[0].at(10, 10, 0) = 1e6f;
+  f.half[0].at(15, 40, 1) = 1e6f;
+  for (int i = 0; i < 2; ++i) f.half[i].at(30, 20, 2) = 1e6f;
+  f.combine();
+  const Frame clean = noisy_frame(128, 48, 0.0f);
+  for (bool second : {true, false}) {
+    NforParams p;
+    p.second_pass = second;
+    NforExtras ex;
+    ex.want_cross_validation = ex.want_hat = true;
+    const Image y = NforDenoiser(p).run(f.inputs(), &ex);
+    require_finite(y);
+    require_finite(ex.cross_validation);
+    require_finite(ex.hat);
+    // Beyond the chain of windows (~45 px, see the black-background case) the fireflies leave
+    // no trace; near them values stay within the fireflies' own scale.
+    double far_err = 0, lo = 0, hi = 0;
+    for (int c = 0; c < 3; ++c) {
+      for (int py = 0; py < f.h; ++py) {
+        for (int px = 0; px < f.w; ++px) {
+          lo = std::min<double>(lo, y.at(px, py, c));
+          hi = std::max<double>(hi, y.at(px, py, c));
+          if (px >= 32 + 45) {
+            far_err = std::max<double>(far_err, std::abs(y.at(px, py, c) - clean.colour.at(px, py, c)));
+          }
+        }
+      }
+    }
+    INFO("second pass " << second << ": range [" << lo << ", " << hi
+                        << "], largest error far from the fireflies " << far_err);
+    CHECK(far_err < 0.2);
+    CHECK(lo > -1e6);
+    CHECK(hi < 2e6);
+  }
+}
+
+TEST_CASE("one pass: single-buffer mode; two passes: both halves", "[nfor]") {
+  FrameAccumulator one, two;
+  const Layout feats{true, true, true, false};
+  one.add(test::make_pass(40, 32, 4, 1, feats), "a");
+  two.add(test::make_pass(40, 32, 4, 1, feats), "a");
+  two.add(test::make_pass(40, 32, 4, 2, feats), "b");
+  for (const FrameAccumulator* acc : {&one, &two}) {
+    const FrameEstimate e = acc->estimate();
+    NforExtras ex;
+    ex.want_cross_validation = ex.want_hat = true;
+    const Image y = NforDenoiser().run(denoise_inputs(e, e.mean, e.variance, true), &ex);
+    require_finite(y);
+    CHECK(ex.mode == (acc->passes() == 1 ? "single-buffer" : "nfor"));
+    CHECK(ex.prefiltered_features == (acc->passes() == 2));
+    CHECK(ex.cross_validation.empty() == (acc->passes() == 1));
+    require_finite(ex.hat);
+  }
+}
+
+TEST_CASE("without feature halves (a v1 state) the features are used unfiltered", "[nfor]") {
+  Frame f = noisy_frame(48, 40, 0.1f);
+  const Frame clean = noisy_frame(48, 40, 0.0f);
+  f.feature_halves = false;
+  NforExtras ex;
+  const Image y = NforDenoiser().run(f.inputs(), &ex);
+  CHECK(ex.mode == "nfor");
+  CHECK_FALSE(ex.prefiltered_features);
+  CHECK(mse(y, clean.colour) < 0.5 * mse(f.colour, clean.colour));
+}
+
+TEST_CASE("NFOR in the tiled pipeline: every tile size gives the whole-frame result",
+          "[nfor][pipeline]") {
+  FrameAccumulator acc;
+  const Layout feats{true, true, true, false};
+  for (int k = 0; k < 4; ++k)
+    acc.add(test::make_pass(53, 41, 4, 10 + static_cast<std::uint64_t>(k), feats),
+            "p" + std::to_string(k));
+  const FrameEstimate e = acc.estimate();
+  const NforDenoiser nfor;
+  PipelineOptions o;
+  o.tile = 1000;
+  const PipelineResult whole = run_pipeline(e, o, &nfor);
+  CHECK(whole.denoiser == "nfor");
+  CHECK(whole.inputs.albedo);
+  CHECK(whole.halo == pipeline_halo(nfor, ClosedFormMixer(o.mixer), o));
+  // y from the whole-frame run itself.
+  Buffer y({0, 0, 53, 41}, 3);
+  nfor.denoise(denoise_inputs(e, e.mean, e.variance, true), {0, 0, 53, 41}, y, nullptr);
+  for (int c = 0; c < 3; ++c) {
+    for (int py = 0; py < 41; ++py) {
+      for (int px = 0; px < 53; ++px) REQUIRE(whole.denoised.at(px, py, c) == y.at(px, py, c));
+    }
+  }
+  for (int tile : {7, 16, 32}) {
+    INFO("tile " << tile);
+    o.tile = tile;
+    const PipelineResult r = run_pipeline(e, o, &nfor);
+    CHECK(max_abs_diff(r.result, whole.result) == 0.0);
+    CHECK(max_abs_diff(r.denoised, whole.denoised) == 0.0);
+    CHECK(max_abs_diff(r.alpha, whole.alpha) == 0.0);
+    CHECK(max_abs_diff(r.sure, whole.sure) == 0.0);
+  }
 }
