@@ -58,7 +58,7 @@ bench: deps
 	@tools/install-deps.sh blender   # renders the evaluation sets it lacks
 	cmake -S . -B $(BENCH_DIR) -DCMAKE_BUILD_TYPE=Release -DPRODEN_WERROR=$(WERROR)
 	cmake --build $(BENCH_DIR) -j $(JOBS) --target proden_eval_levels proden_bench_pipeline \
-	    proden_bench_network proden_micro_kernels
+	    proden_bench_network proden_micro_kernels proden_bench_nfor proden_nfor_eval
 	BUILD_DIR=$(BENCH_DIR) bench/run_all.sh
 
 TRAIN_BUDGET ?= 1440   # seconds of training per width (both widths train at once, 1 thread each)

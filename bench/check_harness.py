@@ -67,6 +67,36 @@ def main():
                     fail(f"network {k} = {r[k]}")
             if not r["gflops_executed"] >= r["gflops_useful"]:
                 fail("executed flops must include the halos")
+    with tempfile.TemporaryDirectory() as d:
+        js = os.path.join(d, "nfor.json")
+        out = subprocess.run([os.path.join(bindir, "proden_bench_nfor"), "--width", "64",
+                              "--height", "48", "--threads", "2", "--isa", "baseline",
+                              "--json", js], capture_output=True, text=True)
+        print(out.stdout)
+        if out.returncode != 0:
+            fail(f"proden_bench_nfor exit {out.returncode}: {out.stderr}")
+        rows = json.load(open(js))["rows"]
+        if [r["denoiser"].split()[0] for r in rows] != ["nlmeans", "nfor"]:
+            fail(f"nfor rows {rows}")
+        for r in rows:
+            if not (finite(r["us_per_pixel"]) and r["us_per_pixel"] > 0):
+                fail(f"nfor speed {r}")
+        if not rows[1]["stages"]["first_pass"] > 0:
+            fail("nfor stages")
+    out = subprocess.run([os.path.join(bindir, "proden_nfor_eval"), "--scene",
+                          os.path.join(samples, "renders", "cornell"), "--json", "--no-mc"],
+                         capture_output=True, text=True)
+    if out.returncode != 0:
+        fail(f"proden_nfor_eval exit {out.returncode}: {out.stderr}")
+    rows = [json.loads(l) for l in out.stdout.splitlines() if l.strip()]
+    if len(rows) != 1 or rows[0]["mode"] != "nfor":
+        fail(f"nfor eval rows {rows}")
+    for k in ("render", "nlmeans", "nfor"):
+        if not (finite(rows[0][k]["relmse"]) and rows[0][k]["relmse"] > 0):
+            fail(f"nfor eval {k}")
+    if set(rows[0]["estimates"]) != {"hat", "cv"}:
+        fail(f"nfor eval estimates {rows[0]['estimates']}")
+    print(json.dumps(rows[0]))
     out = subprocess.run([os.path.join(bindir, "proden_eval_levels"), "--scene",
                           os.path.join(samples, "renders", "cornell"), "--json"],
                          capture_output=True, text=True)

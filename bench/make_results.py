@@ -4,7 +4,7 @@
 Generated parts: accuracy.md + accuracy_summary.json (bench/accuracy.py), perf.json + perf.txt
 (proden_bench_pipeline), cycles_1080p.json (Blender, same run), micro.txt (Google Benchmark).
 Hand-written parts, included verbatim: accumulation.md, daemon.md (measurements made by other
-tools; edit them there, not in RESULTS.md).
+tools; edit them there, not in RESULTS.md); nfor.md is written by bench/nfor_results.py.
 """
 import json
 import math
@@ -224,7 +224,7 @@ def main():
         L.append("\n".join(l for l in micro.splitlines() if l.startswith(("BM_", "---", "Bench",
                                                                           "Run on"))))
         L.append("```\n")
-    for part in ("accumulation.md", "daemon.md"):
+    for part in ("nfor.md", "accumulation.md", "daemon.md"):
         t = read(part)
         if t:
             L.append(t)

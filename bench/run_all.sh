@@ -15,6 +15,8 @@
 #   SKIP_RENDER=1    use the eval sets as they are
 #   SKIP_ACCURACY=1  keep bench/results/accuracy* (REUSE_ACCURACY=1: re-plot from the .jsonl)
 #   SKIP_PERF=1      keep bench/results/perf.* and micro.*   PERF_ARGS: extra bench_pipeline args
+#   SKIP_NFOR=1      keep bench/results/nfor_* (NFOR's speed against NL-means and its evaluation
+#                    against the references, docs/nfor.md)
 set -euo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
@@ -80,6 +82,17 @@ if [[ ${SKIP_PERF:-0} != 1 ]]; then
     echo "== Google Benchmark microbenchmarks"
     "$BIN/proden_micro_kernels" --benchmark_min_time=0.3 2>&1 | tee "$OUT/micro.txt"
   fi
+fi
+
+if [[ ${SKIP_NFOR:-0} != 1 ]]; then
+  echo "== NFOR against NL-means, same run (1920x1080, $(nproc) threads)"
+  "$BIN/proden_bench_nfor" --threads "$(nproc)" --repeat 2 --extras --json "$OUT/nfor_speed.json" |
+    tee "$OUT/nfor_speed.txt"
+  for s in $SCENES; do
+    echo "== NFOR stages and error estimates: $s"
+    "$BIN/proden_nfor_eval" --scene "$EVALDATA/$s" --json > "$OUT/nfor_eval_$s.jsonl"
+  done
+  $PY bench/nfor_results.py
 fi
 
 echo "== bench/RESULTS.md"
