@@ -5,7 +5,7 @@
 // also with the cross-validation error estimate and the hat diagonal.
 //
 //   proden_bench_nfor [--width W --height H] [--threads N] [--repeat R] [--isa NAME]...
-//                     [--extras] [--json FILE]
+//                     [--extras] [--no-second-pass] [--bandwidths K1,K2] [--json FILE]
 #include <sys/resource.h>
 #include <tbb/global_control.h>
 
@@ -51,6 +51,7 @@ struct Row {
 int main(int argc, char** argv) {
   int w = 1920, h = 1080, threads = 2, repeat = 1;
   bool extras_too = false;
+  NforParams base;
   std::vector<std::string> isas;
   std::string json_path;
   for (int i = 1; i < argc; ++i) {
@@ -68,12 +69,19 @@ int main(int argc, char** argv) {
       isas.emplace_back(argv[++i]);
     } else if (a == "--extras") {
       extras_too = true;
+    } else if (a == "--no-second-pass") {
+      base.second_pass = false;
+    } else if (a == "--bandwidths" && more) {
+      if (std::sscanf(argv[++i], "%f,%f", &base.bandwidths[0], &base.bandwidths[1]) != 2) {
+        std::fprintf(stderr, "--bandwidths K1,K2\n");
+        return 2;
+      }
     } else if (a == "--json" && more) {
       json_path = argv[++i];
     } else {
       std::fprintf(stderr,
                    "usage: %s [--width W --height H] [--threads N] [--repeat R] [--isa NAME]... "
-                   "[--extras] [--json FILE]\n",
+                   "[--extras] [--no-second-pass] [--bandwidths K1,K2] [--json FILE]\n",
                    argv[0]);
       return 2;
     }
@@ -86,8 +94,11 @@ int main(int argc, char** argv) {
   const FrameEstimate est = acc.estimate();
   const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
   const double px = static_cast<double>(w) * h;
-  std::printf("%dx%d, HDR+ALB+NRM+DEP, 8 passes x 4 spp (both halves), %d thread(s), best of %d\n",
-              w, h, threads, repeat);
+  std::printf(
+      "%dx%d, HDR+ALB+NRM+DEP, 8 passes x 4 spp (both halves), %d thread(s), best of %d; NFOR "
+      "bandwidths %g,%g, second pass %s\n",
+      w, h, threads, repeat, static_cast<double>(base.bandwidths[0]),
+      static_cast<double>(base.bandwidths[1]), base.second_pass ? "on" : "off");
 
   std::vector<Row> rows;
   {
@@ -108,7 +119,7 @@ int main(int argc, char** argv) {
     rows.push_back(r);
   }
   auto nfor_row = [&](const std::string& isa, bool cv, bool hat) {
-    NforParams p;
+    NforParams p = base;
     p.isa = isa;
     const NforDenoiser den(p);
     Row r;
@@ -155,8 +166,10 @@ int main(int argc, char** argv) {
       std::perror(json_path.c_str());
       return 1;
     }
-    std::fprintf(f, "{\"width\": %d, \"height\": %d, \"threads\": %d, \"repeat\": %d, \"rows\": [\n", w,
-                 h, threads, repeat);
+    std::fprintf(f,
+                 "{\"width\": %d, \"height\": %d, \"threads\": %d, \"repeat\": %d, "
+                 "\"second_pass\": %s, \"rows\": [\n",
+                 w, h, threads, repeat, base.second_pass ? "true" : "false");
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const Row& r = rows[i];
       std::fprintf(f,

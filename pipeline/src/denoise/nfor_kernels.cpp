@@ -33,15 +33,6 @@ inline T vsqrt(T v) {
   return v;
 #endif
 }
-// 1 / v: the 12-bit estimate and one Newton step (~23 bits).
-inline T vrcp(T v) {
-#if defined(__SSE2__)
-  const T r = _mm_rcp_ps(v);
-  return r * (T{} + 2.0f - v * r);
-#else
-  return T{} + 1.0f / v;
-#endif
-}
 inline T vfma(T a, T b, T c) { return a * b + c; }  // no FMA in the baseline
 // 16 registers: blocks of 1-2 rows of the normal equations.
 constexpr int kRows3[] = {0, 1, 2, 3, 4, 6, 8};
@@ -60,10 +51,6 @@ typedef std::int32_t I __attribute__((vector_size(32)));
 constexpr int kL = 8;
 inline T vsqrt(T v) { return _mm256_sqrt_ps(v); }
 inline T vfma(T a, T b, T c) { return _mm256_fmadd_ps(a, b, c); }
-inline T vrcp(T v) {
-  const T r = _mm256_rcp_ps(v);
-  return r * _mm256_fnmadd_ps(v, r, T{} + 2.0f);
-}
 constexpr int kRows3[] = {0, 1, 2, 3, 4, 6, 8};
 constexpr int kRows9[] = {0, 1, 2, 3, 4, 5, 6, 7, 8};
 #include "nfor_kernel.inc"
@@ -78,12 +65,7 @@ typedef std::int32_t I __attribute__((vector_size(64)));
 constexpr int kL = 16;
 // (Not _mm512_sqrt_ps: GCC 12 flags its _mm512_undefined_ps as uninitialised.)
 inline T vsqrt(T v) { return _mm512_maskz_sqrt_ps(0xFFFF, v); }
-// 1 / v: the 14-bit estimate and one Newton step (full precision).
 inline T vfma(T a, T b, T c) { return _mm512_fmadd_ps(a, b, c); }
-inline T vrcp(T v) {
-  const T r = _mm512_maskz_rcp14_ps(0xFFFF, v);
-  return r * _mm512_fnmadd_ps(v, r, T{} + 2.0f);
-}
 // 32 registers: two rows per block (~21 accumulators + the block's features and data).
 constexpr int kRows3[] = {0, 2, 4, 8};
 constexpr int kRows9[] = {0, 1, 2, 3, 4, 6, 8};
