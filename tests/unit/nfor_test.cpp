@@ -568,3 +568,74 @@ TEST_CASE("the pipeline takes NFOR's cross-validation estimate as the SURE of y"
   o.divergence = DivergenceMethod::automatic;
   CHECK(run_pipeline(e1, o, &nfor).divergence == "analytic");
 }
+
+TEST_CASE("every kernel build's NL-means weights match a double-precision reference",
+          "[nfor][simd]") {
+  const int W = 45, H = 37, r = 4, f = 2;
+  const nfor::Geometry g(W, H, 32);
+  nfor::Planes guide(g, 3), var(g, 3);
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      for (int c = 0; c < 3; ++c) {
+        guide.at(x, y, c) = 0.5f + 0.3f * std::sin(0.3f * static_cast<float>(x + c)) +
+                            0.05f * gauss(60, x, y, c);
+        var.at(x, y, c) = (x + y) % 5 == 0 ? 0.0f : 0.0025f * (1.0f + hash01(61, x, y, c));
+      }
+    }
+  }
+  nfor::replicate_border(g, guide);
+  nfor::replicate_border(g, var);
+  const float k = 0.7f;
+  // The reference: d^2 = mean over patch and channels of ((u_p - u_q)^2 - (V_p + min(V_p, V_q)))
+  // / (k^2 (eps + V_p + V_q)), w = exp(-max(0, d^2)), 0 where q leaves the image.
+  auto reference = [&](int px, int py, int dx, int dy) {
+    const int qx = px + dx, qy = py + dy;
+    if (qx < 0 || qy < 0 || qx >= W || qy >= H) return 0.0;
+    double s = 0;
+    for (int c = 0; c < 3; ++c) {
+      for (int ny = -f; ny <= f; ++ny) {
+        for (int nx = -f; nx <= f; ++nx) {
+          const double up = guide.at(px + nx, py + ny, c), uq = guide.at(qx + nx, qy + ny, c);
+          const double vp = var.at(px + nx, py + ny, c), vq = var.at(qx + nx, qy + ny, c);
+          s += ((up - uq) * (up - uq) - (vp + std::min(vp, vq))) /
+               (k * k * (nfor::kDistanceEpsilon + vp + vq));
+        }
+      }
+    }
+    const double d2 = s / (3.0 * (2 * f + 1) * (2 * f + 1));
+    return std::exp(-std::max(0.0, d2));
+  };
+  const Rect tile = g.tile(1, 2);  // an interior tile that reaches past the image's bottom
+  REQUIRE(tile.y1 > H);
+  for (const std::string& isa : nfor::isas_available()) {
+    nfor::WeightSpec spec;
+    for (int c = 0; c < 3; ++c) {
+      spec.guide[c] = guide.origin(c);
+      spec.variance[c] = var.origin(c);
+    }
+    spec.radius = r;
+    spec.patch = f;
+    spec.k = k;
+    spec.kernels = &nfor::kernels(isa);
+    nfor::TileScratch sc;
+    nfor::tile_weights(g, spec, tile, sc);
+    double worst = 0;
+    int o = 0, nonzero = 0;
+    for (int dy = -r; dy <= r; ++dy) {
+      for (int dx = -r; dx <= r; ++dx, ++o) {
+        for (int py = tile.y0; py < tile.y1; ++py) {
+          for (int px = tile.x0; px < tile.x1; ++px) {
+            const float got = sc.weights[static_cast<std::size_t>(
+                o * nfor::kTileArea + (py - tile.y0) * nfor::kTileWidth + (px - tile.x0))];
+            const double want = px < W && py < H ? reference(px, py, dx, dy) : 0.0;
+            worst = std::max(worst, std::abs(got - want));
+            nonzero += want > 1e-3 ? 1 : 0;
+          }
+        }
+      }
+    }
+    INFO("build " << isa << ": largest weight difference " << worst);
+    CHECK(worst < 1e-6);  // float distance sums and exp_neg's ~2e-7 relative error
+    CHECK(nonzero > 1000);
+  }
+}
