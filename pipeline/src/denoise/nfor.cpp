@@ -5,6 +5,7 @@
 // one regression of x weighted on x itself (docs/nfor.md, "single-buffer mode").
 #include "proden/denoise/nfor.hpp"
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -22,6 +23,15 @@ namespace {
 using nfor::Geometry;
 using nfor::Planes;
 using Clock = std::chrono::steady_clock;
+
+// f(i) for every index i of a plane (border included), in parallel.
+template <class F>
+void each_index(const Geometry& g, F&& f) {
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, g.plane_size(), std::size_t{1} << 14),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t i = r.begin(); i < r.end(); ++i) f(i);
+                    });
+}
 
 double since(Clock::time_point& t) {
   const auto now = Clock::now();
@@ -76,13 +86,10 @@ Planes feature_planes(const Geometry& g, const View& albedo, const View& normal,
         const float a = std::isfinite(d) ? std::abs(d) : 0.0f;
         f.origin(6)[i] = a / (a + scale);
       }
+      // NaN features were sanitised upstream (accumulator); keep any that slip through out.
+      for (int c = 0; c < 6; ++c) f.origin(c)[i] = std::isnan(f.origin(c)[i]) ? 0.0f : f.origin(c)[i];
     }
   });
-  // NaN features were sanitised upstream (accumulator); clamp() keeps any that slip through.
-  for (int c = 0; c < nfor::kFeatures; ++c) {
-    float* p = f.plane(c);
-    for (std::size_t i = 0; i < g.plane_size(); ++i) p[i] = std::isnan(p[i]) ? 0.0f : p[i];
-  }
   nfor::replicate_border(g, f);
   return f;
 }
@@ -103,11 +110,11 @@ nfor::WeightSpec weights_on(const nfor::Kernels& kernels, const Planes& guide,
 }
 
 void copy_out(const Geometry& g, const Planes& p, int c0, Image& img) {
-  for (int c = 0; c < img.channels(); ++c) {
-    for (int y = 0; y < g.height; ++y) {
+  tbb::parallel_for(0, g.height, [&](int y) {
+    for (int c = 0; c < img.channels(); ++c) {
       for (int x = 0; x < g.width; ++x) img.at(x, y, c) = p.at(x, y, c0 + c);
     }
-  }
+  });
 }
 
 }  // namespace
@@ -264,17 +271,20 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
     // colour x with its variance from the halves, (x_A - x_B)^2 / 4 (docs/nfor.md).
     // The halves combine like x = a x_A + b x_B (a = Var[x] / Var[x_A], 1/2 for equal halves).
     Planes sel(g, 3), xvar(g, 3), share_a(g, 1);
-    for (std::size_t i = 0; i < g.plane_size(); ++i) {
+    each_index(g, [&](std::size_t i) {
       int c = 0;  // the channel with the largest Var[x_A] (Var = 0 says nothing)
       for (int cc = 1; cc < 3; ++cc) c = va.plane(cc)[i] > va.plane(c)[i] ? cc : c;
       const float v = var.plane(c)[i], v_a = va.plane(c)[i];
-      share_a.plane(0)[i] = v_a > 0.0f ? std::clamp(v / v_a, 0.0f, 1.0f) : 0.5f;
-    }
-    if (want_hat) {
-      // dy/dx (weights and selection fixed): cov(y, x) = Var[x] (dy/dx_A + dy/dx_B) since
-      // Cov(x_A, x) = a Var[x_A] = Var[x]; the first pass gives dsel/dx_A = a sum_k s_k h_A,k.
-      for (std::size_t i = 0; i < g.plane_size(); ++i) {
-        const float a = share_a.plane(0)[i];
+      const float a = v_a > 0.0f ? std::clamp(v / v_a, 0.0f, 1.0f) : 0.5f;
+      share_a.plane(0)[i] = a;
+      for (int cc = 0; cc < 3; ++cc) {
+        sel.plane(cc)[i] = a * sel_a.plane(cc)[i] + (1.0f - a) * sel_b.plane(cc)[i];
+        const float d = xa.plane(cc)[i] - xb.plane(cc)[i];
+        xvar.plane(cc)[i] = std::min(0.25f * d * d, kMaxVariance);
+      }
+      if (want_hat) {
+        // dy/dx (weights and selection fixed): cov(y, x) = Var[x] (dy/dx_A + dy/dx_B) since
+        // Cov(x_A, x) = a Var[x_A] = Var[x]; the first pass gives dsel/dx_A = a sum_k s_k h_A,k.
         float h = 0.0f;
         for (std::size_t k = 0; k < nk; ++k) {
           h += shares.plane(static_cast<int>(k))[i] *
@@ -282,17 +292,9 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
         }
         hat.plane(0)[i] = h;
       }
-    }
+    });
     hat_a.clear();
     hat_b.clear();
-    for (int c = 0; c < 3; ++c) {
-      for (std::size_t i = 0; i < g.plane_size(); ++i) {
-        const float a = share_a.plane(0)[i];
-        sel.plane(c)[i] = a * sel_a.plane(c)[i] + (1.0f - a) * sel_b.plane(c)[i];
-        const float d = xa.plane(c)[i] - xb.plane(c)[i];
-        xvar.plane(c)[i] = std::min(0.25f * d * d, kMaxVariance);
-      }
-    }
     Planes out(g, want_cv ? 9 : 3);
     if (p.second_pass) {
       rs.weights = weights_on(kern, x, xvar, p.window_radius, p.patch_radius, p.second_pass_k);
@@ -306,9 +308,7 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
       nfor::regression(g, rs, {0}, {&out}, {want_hat ? &hat2 : nullptr});
       // The composition's diagonal approximated by the product of the diagonals (a lower bound
       // for smoothing filters: docs/nfor.md measures it).
-      if (want_hat) {
-        for (std::size_t i = 0; i < g.plane_size(); ++i) hat.plane(0)[i] *= hat2.plane(0)[i];
-      }
+      if (want_hat) each_index(g, [&](std::size_t i) { hat.plane(0)[i] *= hat2.plane(0)[i]; });
     } else {
       for (int c = 0; c < 3; ++c) {
         std::copy(sel.plane(c), sel.plane(c) + g.plane_size(), out.plane(c));
@@ -324,19 +324,20 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
       // a MSE(F_A) + b MSE(F_B) - a b E[(F_A - F_B)^2], MSE(F_A) ~ (F_A - x_B)^2 - Var[x_B].
       Image& e = extras->cross_validation;
       e = Image(W, H, 3);
-      for (int c = 0; c < 3; ++c) {
-        for (int yy = 0; yy < H; ++yy) {
+      tbb::parallel_for(0, H, [&](int yy) {
+        for (int c = 0; c < 3; ++c) {
           for (int xx = 0; xx < W; ++xx) {
             const double fa_ = out.at(xx, yy, 3 + c), fb_ = out.at(xx, yy, 6 + c);
             const double ya = xa.at(xx, yy, c), yb = xb.at(xx, yy, c);
-            const double v = var.at(xx, yy, c), v_a = va.at(xx, yy, c), v_b = vb.at(xx, yy, c);
-            const double a = v_a > 0.0 ? std::clamp(v / v_a, 0.0, 1.0) : 0.5, b = 1.0 - a;
+            const double v_a = va.at(xx, yy, c), v_b = vb.at(xx, yy, c);
+            const double a = share_a.at(xx, yy, 0), b = 1.0 - a;
             const double est = a * ((fa_ - yb) * (fa_ - yb) - v_b) +
-                               b * ((fb_ - ya) * (fb_ - ya) - v_a) - a * b * (fa_ - fb_) * (fa_ - fb_);
+                               b * ((fb_ - ya) * (fb_ - ya) - v_a) -
+                               a * b * (fa_ - fb_) * (fa_ - fb_);
             e.at(xx, yy, c) = static_cast<float>(std::clamp(est, -1e36, 1e36));
           }
         }
-      }
+      });
     }
     sec.second_pass = since(t);
   }
@@ -346,11 +347,11 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
     extras->mode = halves ? "nfor" : "single-buffer";
     extras->prefiltered_features = feature_halves;
     if (want_hat) {  // the same for every channel (the weights and design are shared)
+      Image one(W, H, 1);
+      copy_out(g, hat, 0, one);
       extras->hat = Image(W, H, 3);
       for (int c = 0; c < 3; ++c) {
-        for (int yy = 0; yy < H; ++yy) {
-          for (int xx = 0; xx < W; ++xx) extras->hat.at(xx, yy, c) = hat.at(xx, yy, 0);
-        }
+        std::copy(one.plane(0).begin(), one.plane(0).end(), extras->hat.plane(c).begin());
       }
     }
   }
