@@ -26,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "eval_common.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/denoise/nfor.hpp"
 #include "proden/io/network_file.hpp"
@@ -39,32 +40,8 @@ using nlohmann::json;
 
 namespace {
 
-std::vector<std::string> exr_files(const fs::path& dir, const std::string& prefix = "pass_") {
-  std::vector<std::string> out;
-  if (!fs::is_directory(dir)) return out;
-  for (const auto& e : fs::directory_iterator(dir)) {
-    const std::string n = e.path().filename().string();
-    if (e.is_regular_file() && n.rfind(prefix, 0) == 0 && e.path().extension() == ".exr") {
-      out.push_back(e.path().string());
-    }
-  }
-  std::sort(out.begin(), out.end());
-  return out;
-}
-
-FrameAccumulator accumulate(const std::vector<std::string>& files, bool features) {
-  io::ReadOptions o;
-  o.features = features;
-  FrameAccumulator f;
-  for (const auto& p : files) f.add(io::read_pass(p, o), p);
-  return f;
-}
-
-double mean_of(const Image& img) {
-  double s = 0;
-  for (float v : img.data()) s += v;
-  return s / static_cast<double>(img.data().size());
-}
+using bench::accumulate;
+using bench::mean_of;
 
 // Wall seconds of the denoiser alone (NL-means, no derivative) over the frame in tiles.
 double denoise_only_seconds(const FrameEstimate& est, const PipelineOptions& po, Image* out) {
@@ -168,32 +145,13 @@ int main(int argc, char** argv) {
   }
 
   // Levels and reference.
-  std::map<int, std::vector<std::string>> levels;
-  for (const auto& e : fs::directory_iterator(dir)) {
-    const std::string n = e.path().filename().string();
-    if (e.is_directory() && n.rfind("spp", 0) == 0)
-      levels[std::stoi(n.substr(3))] = exr_files(e.path());
+  const bench::EvalSet set = bench::find_levels(dir, levels_csv);
+  if (set.levels.empty()) {
+    std::fprintf(stderr, "no passes in %s\n", dir.c_str());
+    return 2;
   }
-  std::vector<std::string> ref_files = exr_files(fs::path(dir) / "reference");
-  if (levels.empty()) {
-    const auto passes = exr_files(dir);
-    if (passes.empty()) {
-      std::fprintf(stderr, "no passes in %s\n", dir.c_str());
-      return 2;
-    }
-    levels[0] = passes;  // spp filled in from the files
-    ref_files = {(fs::path(dir) / "reference.exr").string()};
-  }
-  if (!levels_csv.empty()) {
-    std::map<int, std::vector<std::string>> keep;
-    std::stringstream ss(levels_csv);
-    std::string tok;
-    while (std::getline(ss, tok, ',')) {
-      const int l = std::stoi(tok);
-      if (levels.count(l)) keep[l] = levels[l];
-    }
-    levels = keep;
-  }
+  const auto& levels = set.levels;
+  const auto& ref_files = set.reference;
   const FrameAccumulator ref_frame = accumulate(ref_files, false);
   const FrameEstimate ref_est = ref_frame.estimate({.halves = false, .features = false});
   const double ref_var = ref_frame.passes() >= 2 ? mean_of(ref_est.variance) : 0.0;

@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "bench_common.hpp"
+#include "eval_common.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/denoise/nfor.hpp"
 #include "proden/io/image_writer.hpp"
@@ -42,25 +43,8 @@ using nlohmann::json;
 
 namespace {
 
-std::vector<std::string> exr_files(const fs::path& dir) {
-  std::vector<std::string> out;
-  if (!fs::is_directory(dir)) return out;
-  for (const auto& e : fs::directory_iterator(dir)) {
-    const std::string n = e.path().filename().string();
-    if (e.is_regular_file() && n.rfind("pass_", 0) == 0 && e.path().extension() == ".exr")
-      out.push_back(e.path().string());
-  }
-  std::sort(out.begin(), out.end());
-  return out;
-}
-
-FrameAccumulator accumulate(const std::vector<std::string>& files, bool features) {
-  io::ReadOptions o;
-  o.features = features;
-  FrameAccumulator f;
-  for (const auto& p : files) f.add(io::read_pass(p, o), p);
-  return f;
-}
+using bench::accumulate;
+using bench::mean_of;
 
 // Ranks with ties averaged.
 std::vector<double> ranks(const std::vector<double>& v) {
@@ -110,12 +94,6 @@ std::vector<double> window_means(const Image& img, int w) {
     }
   }
   return out;
-}
-
-double mean_of(const Image& img) {
-  double s = 0;
-  for (float v : img.data()) s += v;
-  return s / static_cast<double>(img.data().size());
 }
 
 json metrics_json(const Image& img, const Image& ref, double ref_var) {
@@ -181,31 +159,18 @@ int main(int argc, char** argv) {
     limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
                                                   static_cast<std::size_t>(threads));
   }
-  std::map<int, std::vector<std::string>> levels;
-  for (const auto& e : fs::directory_iterator(dir)) {
-    const std::string n = e.path().filename().string();
-    if (e.is_directory() && n.rfind("spp", 0) == 0) levels[std::stoi(n.substr(3))] = exr_files(e.path());
+  const bench::EvalSet set = bench::find_levels(dir, levels_csv);
+  if (set.levels.empty()) {
+    std::fprintf(stderr, "no passes in %s\n", dir.c_str());
+    return 2;
   }
-  if (!levels_csv.empty()) {
-    std::map<int, std::vector<std::string>> keep;
-    std::stringstream ss(levels_csv);
-    std::string tok;
-    while (std::getline(ss, tok, ',')) {
-      if (levels.count(std::stoi(tok))) keep[std::stoi(tok)] = levels[std::stoi(tok)];
-    }
-    levels = keep;
-  }
-  std::vector<std::string> ref_files = exr_files(fs::path(dir) / "reference");
-  if (levels.empty()) {  // DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>)
-    levels[0] = exr_files(dir);
-    ref_files = {(fs::path(dir) / "reference.exr").string()};
-  }
+  const auto& ref_files = set.reference;
   const FrameAccumulator ref_frame = accumulate(ref_files, false);
   const FrameEstimate ref = ref_frame.estimate({.halves = false, .features = false});
   const double ref_var = ref_frame.passes() >= 2 ? mean_of(ref.variance) : 0.0;
   const std::string scene = fs::path(dir).filename().string();
 
-  for (const auto& [level, files] : levels) {
+  for (const auto& [level, files] : set.levels) {
     if (files.empty()) continue;
     const FrameAccumulator f = accumulate(files, true);
     const FrameEstimate est = f.estimate();

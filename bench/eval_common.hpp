@@ -1,0 +1,83 @@
+// Shared by the evaluation tools (proden_eval_levels, proden_nfor_eval): finding a scene's sample
+// levels and reference, and accumulating their passes.
+//
+// Layouts: DIR/spp<L>/pass_*.exr with DIR/reference/pass_*.exr (bench/render_eval_set.sh), or
+// DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level, 0.
+#pragma once
+
+#include <algorithm>
+#include <filesystem>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "proden/accumulator.hpp"
+#include "proden/io/pass_reader.hpp"
+
+namespace proden::bench {
+
+inline std::vector<std::string> exr_files(const std::filesystem::path& dir,
+                                          const std::string& prefix = "pass_") {
+  std::vector<std::string> out;
+  if (!std::filesystem::is_directory(dir)) return out;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    const std::string n = e.path().filename().string();
+    if (e.is_regular_file() && n.rfind(prefix, 0) == 0 && e.path().extension() == ".exr") {
+      out.push_back(e.path().string());
+    }
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+inline FrameAccumulator accumulate(const std::vector<std::string>& files, bool features) {
+  io::ReadOptions o;
+  o.features = features;
+  FrameAccumulator f;
+  for (const auto& p : files) f.add(io::read_pass(p, o), p);
+  return f;
+}
+
+inline double mean_of(const Image& img) {
+  double s = 0;
+  for (float v : img.data()) s += v;
+  return s / static_cast<double>(img.data().size());
+}
+
+struct EvalSet {
+  std::map<int, std::vector<std::string>> levels;  // spp level -> pass files
+  std::vector<std::string> reference;
+};
+
+// The levels of `dir` (only those in the comma-separated `levels_csv` when it is not empty);
+// `levels` is empty when the directory holds no passes.
+inline EvalSet find_levels(const std::string& dir, const std::string& levels_csv) {
+  namespace fs = std::filesystem;
+  EvalSet s;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string n = e.path().filename().string();
+    if (e.is_directory() && n.rfind("spp", 0) == 0)
+      s.levels[std::stoi(n.substr(3))] = exr_files(e.path());
+  }
+  s.reference = exr_files(fs::path(dir) / "reference");
+  if (s.levels.empty()) {
+    const auto passes = exr_files(dir);
+    if (passes.empty()) return s;
+    s.levels[0] = passes;  // spp filled in from the files
+    s.reference = {(fs::path(dir) / "reference.exr").string()};
+  }
+  if (!levels_csv.empty()) {
+    std::map<int, std::vector<std::string>> keep;
+    std::stringstream ss(levels_csv);
+    std::string tok;
+    while (std::getline(ss, tok, ',')) {
+      const int l = std::stoi(tok);
+      if (s.levels.count(l)) keep[l] = s.levels[l];
+    }
+    s.levels = keep;
+  }
+  return s;
+}
+
+}  // namespace proden::bench
