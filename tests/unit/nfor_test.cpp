@@ -365,7 +365,9 @@ TEST_CASE("rank-deficient windows: constant, collinear and degenerate features",
     INFO(c.name);
     Frame f = noisy_frame(48, 40, 0.1f);
     set_features(f, c.features);
-    for (const std::string& isa : nfor::isas_available()) {
+    // Every build on the degenerate ramp (the solve's masks differ per build), one elsewhere.
+    const bool all = std::string(c.name).rfind("collinear", 0) == 0;
+    for (const std::string& isa : all ? nfor::isas_available() : std::vector<std::string>{""}) {
       INFO("build " << isa);
       NforExtras ex;
       ex.want_cross_validation = ex.want_hat = true;
@@ -433,11 +435,12 @@ TEST_CASE("1e6 fireflies stay local and finite", "[nfor]") {
     NforParams p;
     p.second_pass = second;
     NforExtras ex;
-    ex.want_cross_validation = ex.want_hat = true;
+    ex.want_cross_validation = true;
+    ex.want_hat = second;
     const Image y = NforDenoiser(p).run(f.inputs(), &ex);
     require_finite(y);
     require_finite(ex.cross_validation);
-    require_finite(ex.hat);
+    if (second) require_finite(ex.hat);
     // Beyond the chain of windows (~45 px, see the black-background case) the fireflies leave
     // no trace; near them values stay within the fireflies' own scale.
     double far_err = 0, lo = 0, hi = 0;
@@ -524,7 +527,7 @@ TEST_CASE("NFOR in the tiled pipeline: every tile size gives the whole-frame res
   }
 }
 TEST_CASE("asking for the error estimates leaves y bit-identical", "[nfor]") {
-  const Frame f = noisy_frame(53, 41, 0.1f);
+  const Frame f = noisy_frame(40, 33, 0.1f);
   for (const std::string& isa : nfor::isas_available()) {
     INFO("build " << isa);
     const NforDenoiser den(with_isa(isa));
