@@ -150,19 +150,14 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
   PipelineResult res;
   res.denoiser = denoiser.name();
   res.mixer = mixer.name();
-  // Automatic: the denoiser's own error estimate when it offers one, else its Jacobian.
-  const bool estimate = options.divergence == DivergenceMethod::automatic &&
-                        denoiser.has_error_estimate(denoise_inputs(frame, frame.mean,
-                                                                   frame.variance, false));
   const bool analytic =
       options.divergence == DivergenceMethod::analytic ||
-      (options.divergence == DivergenceMethod::automatic && !estimate &&
-       denoiser.has_derivative());
+      (options.divergence == DivergenceMethod::automatic && denoiser.has_derivative());
   if (analytic && !denoiser.has_derivative()) {
     throw std::invalid_argument("run_pipeline: denoiser " + denoiser.name() +
                                 " has no Jacobian diagonal for the analytic divergence");
   }
-  res.divergence = estimate ? "denoiser-estimate" : analytic ? "analytic" : "monte-carlo";
+  res.divergence = analytic ? "analytic" : "monte-carlo";
   res.halo = pipeline_halo(denoiser, mixer, options);
 
   const Image x = sanitized(frame.mean, -kMaxValue, kMaxValue);
@@ -207,17 +202,11 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
   if (denoiser.whole_frame()) {
     const auto t0 = Clock::now();
     y_whole = Buffer(image, 3);
-    Buffer dydx(analytic || estimate ? image : Rect{}, 3);
-    if (estimate) {
-      denoiser.denoise_with_error(din, image, y_whole, dydx);
-    } else {
-      denoiser.denoise(din, image, y_whole, analytic ? &dydx : nullptr);
-    }
+    Buffer dydx(analytic ? image : Rect{}, 3);
+    denoiser.denoise(din, image, y_whole, analytic ? &dydx : nullptr);
     const auto t1 = Clock::now();
     div_whole = Buffer(image, 3);
-    if (estimate) {
-      divergence_from_error(din.colour, din.variance, y_whole, dydx, image, div_whole);
-    } else if (analytic) {
+    if (analytic) {
       divergence_from_derivative(din.variance, dydx, image, div_whole);
     } else {
       divergence_monte_carlo(denoiser, din, image, y_whole, options.probes, div_whole);
@@ -235,17 +224,11 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
 
     const double t0 = thread_cpu();
     Buffer y(r_den, 3), dydx(r_den, 3), div(r_den, 3), sure_buf(r_den, 3);
-    if (!denoiser.whole_frame() && estimate) {
-      denoiser.denoise_with_error(din, r_den, y, dydx);
-    } else if (!denoiser.whole_frame()) {
-      denoiser.denoise(din, r_den, y, analytic ? &dydx : nullptr);
-    }
+    if (!denoiser.whole_frame()) denoiser.denoise(din, r_den, y, analytic ? &dydx : nullptr);
     const double t1 = thread_cpu();
     if (denoiser.whole_frame()) {
       copy_region(y_whole, r_den, y);
       copy_region(div_whole, r_den, div);
-    } else if (estimate) {
-      divergence_from_error(din.colour, din.variance, y, dydx, r_den, div);
     } else if (analytic) {
       divergence_from_derivative(din.variance, dydx, r_den, div);
     } else {

@@ -93,18 +93,6 @@ void divergence_monte_carlo(const Denoiser& denoiser, const DenoiseInputs& in, c
   }
 }
 
-void divergence_from_error(const View& x, const View& variance, const Buffer& y,
-                           const Buffer& error, const Rect& region, Buffer& div) {
-  for (int c = 0; c < 3; ++c) {
-    for (int py = region.y0; py < region.y1; ++py) {
-      for (int px = region.x0; px < region.x1; ++px) {
-        const float d = y.at(px, py, c) - x.at(px, py, c);
-        div.at(px, py, c) = 0.5f * (error.at(px, py, c) - d * d + variance.at(px, py, c));
-      }
-    }
-  }
-}
-
 void sure(const View& x, const View& variance, const Buffer& y, const Buffer& div,
           const Rect& region, Buffer& out) {
   for (int c = 0; c < 3; ++c) {

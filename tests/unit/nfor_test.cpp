@@ -542,7 +542,7 @@ TEST_CASE("asking for the error estimates leaves y bit-identical", "[nfor]") {
   }
 }
 
-TEST_CASE("the pipeline takes NFOR's cross-validation estimate as the SURE of y", "[nfor][pipeline]") {
+TEST_CASE("the pipeline takes NFOR's hat diagonal for SURE's divergence", "[nfor][pipeline]") {
   FrameAccumulator acc;
   const Layout feats{true, true, true, false};
   for (int k = 0; k < 4; ++k)
@@ -552,27 +552,26 @@ TEST_CASE("the pipeline takes NFOR's cross-validation estimate as the SURE of y"
   const NforDenoiser nfor;
   PipelineOptions o;
   const PipelineResult r = run_pipeline(e, o, &nfor);
-  CHECK(r.divergence == "denoiser-estimate");
+  CHECK(r.divergence == "analytic");
   NforExtras ex;
-  ex.want_cross_validation = true;
+  ex.want_hat = true;
   const Image y = nfor.run(denoise_inputs(e, e.mean, e.variance, true), &ex);
   CHECK(max_abs_diff(r.denoised, y) == 0.0);
+  // SURE = (y - x)^2 - var + 2 hat var, and the hat is a leverage: in [0, 1].
   double worst = 0;
   for (std::size_t i = 0; i < y.data().size(); ++i) {
-    const double cv = ex.cross_validation.data()[i];
-    worst = std::max(worst, std::abs(r.sure.data()[i] - cv) / (std::abs(cv) + 1e-6));
+    const double h = ex.hat.data()[i], v = e.variance.data()[i];
+    const double d = static_cast<double>(y.data()[i]) - e.mean.data()[i];
+    REQUIRE(h >= 0.0);
+    REQUIRE(h <= 1.0 + 1e-5);
+    worst = std::max(worst, std::abs(r.sure.data()[i] - (d * d - v + 2 * h * v)) / (v + 1e-12));
   }
-  INFO("largest relative difference of SURE and the estimate " << worst);
-  CHECK(worst < 1e-3);  // SURE = (y-x)^2 - var + 2 div with div implied by the estimate: rounding
-  // Explicit choices still work: the hat diagonal, or the Monte-Carlo probe.
-  o.divergence = DivergenceMethod::analytic;
-  CHECK(run_pipeline(e, o, &nfor).divergence == "analytic");
-  // Without halves (one pass) there is no estimate: automatic falls back to the derivative.
+  INFO("largest difference of SURE and (y-x)^2 - var + 2 hat var, relative to var: " << worst);
+  CHECK(worst < 1e-4);
+  // One pass: single-buffer mode, still with its hat diagonal.
   FrameAccumulator one;
   one.add(test::make_pass(40, 30, 4, 20, feats), "p0");
-  const FrameEstimate e1 = one.estimate();
-  o.divergence = DivergenceMethod::automatic;
-  CHECK(run_pipeline(e1, o, &nfor).divergence == "analytic");
+  CHECK(run_pipeline(one.estimate(), o, &nfor).divergence == "analytic");
 }
 
 TEST_CASE("every kernel build's NL-means weights match a double-precision reference",

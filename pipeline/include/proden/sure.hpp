@@ -29,11 +29,6 @@ void divergence_from_derivative(const View& variance, const Buffer& dydx, const 
 void divergence_monte_carlo(const Denoiser& denoiser, const DenoiseInputs& in, const Rect& region,
                             const Buffer& y, const MonteCarloProbes& probes, Buffer& div);
 
-// The divergence a denoiser's own error estimate E of y implies, div = (E - (y - x)^2 + var) / 2,
-// so that SURE = (y - x)^2 - var + 2 div = E and the Stein mixer sees the same error.
-void divergence_from_error(const View& x, const View& variance, const Buffer& y,
-                           const Buffer& error, const Rect& region, Buffer& div);
-
 // SURE over `region` from x, var, y and div.
 void sure(const View& x, const View& variance, const Buffer& y, const Buffer& div,
           const Rect& region, Buffer& out);

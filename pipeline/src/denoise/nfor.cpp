@@ -383,28 +383,4 @@ void NforDenoiser::denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, 
   }
 }
 
-bool NforDenoiser::has_error_estimate(const DenoiseInputs& in) const {
-  return in.half_colour[0].valid() && in.half_colour[1].valid() && in.half_variance[0].valid() &&
-         in.half_variance[1].valid();
-}
-
-void NforDenoiser::denoise_with_error(const DenoiseInputs& in, const Rect& out, Buffer& y,
-                                      Buffer& error) const {
-  if (!has_error_estimate(in)) {
-    throw std::invalid_argument("NforDenoiser: the error estimate needs both half buffers");
-  }
-  if (out.empty()) return;
-  NforExtras extras;
-  extras.want_cross_validation = true;
-  const Image full = run(in, &extras);
-  for (int c = 0; c < 3; ++c) {
-    for (int py = out.y0; py < out.y1; ++py) {
-      for (int px = out.x0; px < out.x1; ++px) {
-        y.at(px, py, c) = full.at(px, py, c);
-        error.at(px, py, c) = extras.cross_validation.at(px, py, c);
-      }
-    }
-  }
-}
-
 }  // namespace proden

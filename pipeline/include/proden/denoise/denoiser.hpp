@@ -42,14 +42,6 @@ class Denoiser {
   // Computes y (and dydx when non-null and supported) over `out`, which must lie in the image.
   // y and dydx must be 3-channel buffers covering `out`.
   virtual void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const = 0;
-  // True if denoise_with_error() offers its own estimate of y's squared error per pixel and
-  // channel (NFOR: half-buffer cross-validation, docs/nfor.md); the pipeline's automatic
-  // divergence then takes it in place of SURE. Only when the inputs allow it (NFOR: both halves).
-  virtual bool has_error_estimate(const DenoiseInputs&) const { return false; }
-  // Like denoise(), also filling `error` (3 channels covering `out`) with that estimate of
-  // E[(y - truth)^2] (unclamped: negative where y looks better than the noise allows).
-  virtual void denoise_with_error(const DenoiseInputs& in, const Rect& out, Buffer& y,
-                                  Buffer& error) const;
 };
 
 }  // namespace proden

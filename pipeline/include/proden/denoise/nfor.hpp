@@ -82,10 +82,6 @@ class NforDenoiser final : public Denoiser {
   bool reads_features() const override { return params_.use_features; }
   // Runs the whole frame and copies `out` (any region) into y (and dydx).
   void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const override;
-  // Half-buffer cross-validation (NforExtras::cross_validation): needs both halves.
-  bool has_error_estimate(const DenoiseInputs& in) const override;
-  void denoise_with_error(const DenoiseInputs& in, const Rect& out, Buffer& y,
-                          Buffer& error) const override;
   // The whole frame: y (3 channels) and, as asked in `extras`, its error estimates.
   Image run(const DenoiseInputs& in, NforExtras* extras = nullptr) const;
   const NforParams& params() const { return params_; }
