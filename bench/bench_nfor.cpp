@@ -13,6 +13,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <string>
 #include <vector>
 
@@ -29,6 +30,19 @@ namespace {
 
 double since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+// Peak resident set (VmHWM) in bytes, 0 if unknown.
+double peak_rss_bytes() {
+  std::FILE* f = std::fopen("/proc/self/status", "r");
+  if (!f) return 0.0;
+  char line[256];
+  double kb = 0.0;
+  while (std::fgets(line, sizeof line, f)) {
+    if (std::strncmp(line, "VmHWM:", 6) == 0) kb = std::atof(line + 6);
+  }
+  std::fclose(f);
+  return kb * 1024.0;
 }
 
 // CPU seconds (user + system) of the process so far.
@@ -101,6 +115,7 @@ int main(int argc, char** argv) {
       static_cast<double>(base.bandwidths[1]), base.second_pass ? "on" : "off");
 
   std::vector<Row> rows;
+  const double rss_before = peak_rss_bytes();
   {
     Row r;
     r.what = "nlmeans (r=5 f=3, tiles 256, no Jacobian)";
@@ -148,6 +163,10 @@ int main(int argc, char** argv) {
   }
 
   const double nl_us = rows[0].wall / px * 1e6;
+  const double rss_after = peak_rss_bytes();
+  std::printf("peak RSS: %.0f MB with the frame's passes, accumulator and estimate; %.0f MB after "
+              "the denoisers (NFOR's planes: +%.0f MB)\n",
+              rss_before / 1e6, rss_after / 1e6, (rss_after - rss_before) / 1e6);
   std::printf("%-44s %8s %8s %8s %8s %6s | %7s %7s %7s %7s %7s\n", "denoiser", "wall s",
               "us/px", "/NLM", "CPU us", "cores", "load", "prefilt", "pass 1", "select", "pass 2");
   for (const Row& r : rows) {
@@ -168,8 +187,9 @@ int main(int argc, char** argv) {
     }
     std::fprintf(f,
                  "{\"width\": %d, \"height\": %d, \"threads\": %d, \"repeat\": %d, "
-                 "\"second_pass\": %s, \"rows\": [\n",
-                 w, h, threads, repeat, base.second_pass ? "true" : "false");
+                 "\"second_pass\": %s, \"peak_rss_before\": %.0f, \"peak_rss_after\": %.0f, "
+                 "\"rows\": [\n",
+                 w, h, threads, repeat, base.second_pass ? "true" : "false", rss_before, rss_after);
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const Row& r = rows[i];
       std::fprintf(f,

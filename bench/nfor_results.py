@@ -50,6 +50,13 @@ def speed(L):
                  (" | ".join(f"{st[k]:.3f}" for k in ("prefilter", "first_pass", "selection",
                                                         "second_pass")) if nf else
                   " | | | ") + " |")
+    if s.get("peak_rss_after"):
+        L.append(f"\nPeak resident memory of the process: {s['peak_rss_before'] / 1e6:.0f} MB "
+                 f"with the frame accumulated and estimated, {s['peak_rss_after'] / 1e6:.0f} MB "
+                 f"after the denoisers: NFOR's whole-frame planes add "
+                 f"{(s['peak_rss_after'] - s['peak_rss_before']) / 1e6:.0f} MB "
+                 f"({(s['peak_rss_after'] - s['peak_rss_before']) / (s['width'] * s['height']):.0f} "
+                 "bytes per pixel).")
     L.append("")
 
 
