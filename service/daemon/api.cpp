@@ -254,7 +254,8 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
   }
   if (n == 8 && p[6] == "passes") {
     if (m != http::verb::put) not_allowed("PUT");
-    return {json_response(202, engine_.upload(id, frame_s, p[7], req.body()))};
+    auto answer = engine_.upload(id, frame_s, p[7], req.body());
+    return {json_response(answer.value("status", "") == "ingested" ? 200 : 202, answer)};
   }
   throw ApiError(404, "not_found", "no such endpoint");
 }

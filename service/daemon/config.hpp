@@ -50,6 +50,8 @@ struct Config {
 // Applies the keys present in `j` over `c` (throws std::runtime_error on unknown keys or types).
 void apply_json(Config& c, const nlohmann::json& j);
 void load_config_file(Config& c, const std::string& path);
+// Checks every number against its bounds (throws std::runtime_error naming the key).
+void validate(const Config& c);
 nlohmann::json to_json(const Config& c);
 
 bool is_loopback_address(const std::string& host);

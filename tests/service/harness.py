@@ -60,6 +60,7 @@ class Daemon:
             os.chmod(tf, 0o600)
             args += ["--token-file", tf]
         self.logf = open(self.log, "ab")
+        self.log_start = self.logf.tell()
         self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=self.logf)
         deadline = time.monotonic() + timeout
         line = b""
@@ -98,7 +99,18 @@ class Daemon:
             self.proc.stdout.close()
             self.logf.close()
         self.proc = None
+        self.check_sanitizer_reports()
         return rc
+
+    def check_sanitizer_reports(self):
+        """Fails when this run of the daemon printed a ThreadSanitizer (or ASan/UBSan) report."""
+        with open(self.log, "rb") as f:
+            f.seek(self.log_start)
+            text = f.read().decode(errors="replace")
+        for marker in ("WARNING: ThreadSanitizer", "ERROR: AddressSanitizer", "runtime error:"):
+            i = text.find(marker)
+            if i >= 0:
+                raise AssertionError("daemon sanitizer report:\n" + text[max(0, i - 200):i + 6000])
 
     def kill9(self):
         return self.stop(signal.SIGKILL)
