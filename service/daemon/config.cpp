@@ -46,6 +46,7 @@ void each_number(C& c, F&& f) {
   f("worker_threads", c.worker_threads, 1.0, 256.0);
   f("io_threads", c.io_threads, 1.0, 256.0);
   f("max_resident_frames", c.max_resident_frames, 0.0, 4096.0);
+  f("pipeline_threads", c.pipeline_threads, 0.0, 1024.0);
   f("limits.max_body_bytes", c.limits.max_body_bytes, 1.0, 1073741824.0);
   f("limits.max_upload_bytes", c.limits.max_upload_bytes, 1.0, 68719476736.0);
   f("limits.max_header_bytes", c.limits.max_header_bytes, 1024.0, 1048576.0);
@@ -86,10 +87,11 @@ const json* find(const json& j, const std::string& key) {
 }  // namespace
 
 void apply_json(Config& c, const json& j) {
-  check_keys(j,
-             {"bind", "port", "state_dir", "allowed_roots", "token_file", "worker_threads",
-              "io_threads", "max_resident_frames", "log_level", "limits", "watch"},
-             "");
+  check_keys(
+      j,
+      {"bind", "port", "state_dir", "allowed_roots", "token_file", "worker_threads", "io_threads",
+       "max_resident_frames", "pipeline_threads", "log_level", "limits", "watch"},
+      "");
   take(j, "bind", c.bind, "");
   take(j, "state_dir", c.state_dir, "");
   take(j, "allowed_roots", c.allowed_roots, "");
@@ -148,6 +150,7 @@ json to_json(const Config& c) {
           {"worker_threads", c.worker_threads},
           {"io_threads", c.io_threads},
           {"max_resident_frames", c.max_resident_frames},
+          {"pipeline_threads", c.pipeline_threads},
           {"log_level", c.log_level},
           {"limits",
            {{"max_body_bytes", c.limits.max_body_bytes},

@@ -42,6 +42,7 @@ struct Config {
   int worker_threads = 2;       // frames processed concurrently
   int io_threads = 2;           // HTTP threads
   int max_resident_frames = 2;  // accumulators cached in memory (others reload from state)
+  int pipeline_threads = 0;     // threads of one frame's pipeline (TBB); 0 = one per core
   std::string log_level = "info";
   Limits limits;
   WatchConfig watch;

@@ -77,6 +77,11 @@ Engine::~Engine() {
 
 void Engine::start() {
   validate(config_);
+  if (config_.pipeline_threads > 0) {
+    pipeline_threads_ =
+        std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                              static_cast<std::size_t>(config_.pipeline_threads));
+  }
   fs::create_directories(store_.jobs_dir());
   load_state();
   watcher_->start();
@@ -356,6 +361,8 @@ void Engine::on_failed(const std::shared_ptr<Job>& job, long frame, const Pendin
       spdlog::error("{}: {} error (attempt {}, retried in {} ms): {}", p.path.string(), f.kind,
                     attempts, delay.count(), f.message);
       metrics_.inc("proden_errors_total", f.kind);
+      publish_error(events_, job->spec.id, frame, p.pass, p.path.string(), f.kind, f.message,
+                    false);
     }
     std::lock_guard lock(mu_);
     Frame& fr = job->frames[frame];

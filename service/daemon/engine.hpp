@@ -22,6 +22,7 @@
 #include <string>
 #include <vector>
 
+#include <tbb/global_control.h>
 #include <nlohmann/json.hpp>
 
 #include "daemon/clock.hpp"
@@ -149,6 +150,7 @@ class Engine {
   PreviewCache previews_;
   std::unique_ptr<Watcher> watcher_;
   std::unique_ptr<Scheduler> scheduler_;
+  std::unique_ptr<tbb::global_control> pipeline_threads_;  // config.pipeline_threads > 0
 
   mutable std::mutex mu_;
   std::map<std::string, std::shared_ptr<Job>> jobs_;

@@ -77,6 +77,16 @@ std::string read_all(const fs::path& p) {
   return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
+void flip_byte(const fs::path& p, std::int64_t offset) {
+  std::fstream f(p, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekg(offset, offset < 0 ? std::ios::end : std::ios::beg);
+  const auto pos = f.tellg();
+  char c = 0;
+  f.read(&c, 1);
+  f.seekp(pos);
+  f.put(static_cast<char>(c ^ 0x10));
+}
+
 EngineRig::EngineRig() {
   fs::create_directories(allowed());
   config.state_dir = (t.path() / "state").string();

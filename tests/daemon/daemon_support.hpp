@@ -67,6 +67,9 @@ bool eventually(const std::function<bool()>& pred, int timeout_ms = 20000);
 
 std::string read_all(const std::filesystem::path& p);
 
+// Flips one bit of the byte at `offset` from the file's end (negative) or start.
+void flip_byte(const std::filesystem::path& p, std::int64_t offset);
+
 // An Engine on a temp state directory and allowed root, with fast polling (no inotify), a fake
 // retry clock and an optional fault hook; restartable.
 struct EngineRig {

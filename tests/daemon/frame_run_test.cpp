@@ -57,17 +57,6 @@ struct Rig {
   fs::path watched(const std::string& pass) const { return t.path() / "w" / (pass + ".exr"); }
 };
 
-// Flips one byte of a file at `offset` from its end.
-void flip_byte(const fs::path& p, std::int64_t offset) {
-  std::fstream f(p, std::ios::in | std::ios::out | std::ios::binary);
-  f.seekg(offset, std::ios::end);
-  const auto pos = f.tellg();
-  char c = 0;
-  f.read(&c, 1);
-  f.seekp(pos);
-  f.put(static_cast<char>(c ^ 0x10));
-}
-
 }  // namespace
 
 TEST_CASE("FrameRun: passes are committed with their identities, then published",
@@ -161,7 +150,7 @@ TEST_CASE("FrameRun: an unreadable persisted state reads nothing", "[daemon][fra
   const auto a = test::write_pass(r.watched("a"), "a", 1);
   REQUIRE(r.run({a}).result == FrameRun::Result::done);
   const FrameRecord first = r.committed.at(0);
-  flip_byte(r.store.state_path("j1", 1), -20);  // and there is no earlier state
+  test::flip_byte(r.store.state_path("j1", 1), -20);  // and there is no earlier state
   const auto b = test::write_pass(r.watched("b"), "b", 2);
   const auto out = r.run({b}, first, true);
   CHECK(out.result == FrameRun::Result::state_unreadable);
@@ -180,7 +169,7 @@ TEST_CASE("FrameRun: a damaged state falls back to the last good one, and says s
   const FrameRecord second = r.committed.at(1);
   CHECK_FALSE(fs::exists(b.path));  // kept aside, backing the last good state
   CHECK(fs::exists(r.store.kept_dir("j1", 1) / "b.exr"));
-  flip_byte(r.store.state_path("j1", 1), -100);
+  test::flip_byte(r.store.state_path("j1", 1), -100);
   std::vector<FrameRecord> recovered;
   r.on_recovered = [&](const FrameRecord& g) { recovered.push_back(g); };
   const auto c = test::write_pass(r.watched("c"), "c", 3);

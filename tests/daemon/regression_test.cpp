@@ -46,17 +46,6 @@ std::vector<std::string> pass_names(const protocol::FrameStatus& f) {
   return out;
 }
 
-// Flips one byte of a file at `offset` from its end (negative) or start.
-void flip_byte(const fs::path& p, std::int64_t offset) {
-  std::fstream f(p, std::ios::in | std::ios::out | std::ios::binary);
-  f.seekg(offset, offset < 0 ? std::ios::end : std::ios::beg);
-  const auto pos = f.tellg();
-  char c = 0;
-  f.read(&c, 1);
-  f.seekp(pos);
-  f.put(static_cast<char>(c ^ 0x10));
-}
-
 }  // namespace
 
 // ---- 8. self-ingestion -----------------------------------------------------------------------
@@ -235,12 +224,12 @@ TEST_CASE("Regression 11: a flipped byte in the statistics does not block the fr
   const auto version = rig.engine->frame(job.id, 1).version;
   const fs::path state = rig.t.path() / "state" / "jobs" / job.id / "frames" / "1.state";
   SECTION("damage in the statistics, found when the frame next runs") {
-    rig.restart();           // drop the resident state: the next run reads the file
-    flip_byte(state, -200);  // inside the accumulated statistics
+    rig.restart();                 // drop the resident state: the next run reads the file
+    test::flip_byte(state, -200);  // inside the accumulated statistics
   }
   SECTION("damage in the record, found at start-up") {
     rig.engine->stop();
-    flip_byte(state, 40);  // inside the JSON record
+    test::flip_byte(state, 40);  // inside the JSON record
     rig.restart();
   }
   rig.engine->upload(job.id, "1", "c", rig.pass_bytes(3));
