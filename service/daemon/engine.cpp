@@ -167,7 +167,7 @@ void Engine::save_quarantine(const std::shared_ptr<Job>& job) {
   std::string text;
   {
     std::lock_guard lock(mu_);
-    text = job->quarantine.to_json().dump(1);
+    text = job->quarantine.to_json().dump(1, ' ', false, json::error_handler_t::replace);
   }
   try {
     store_.save_quarantine(job->spec.id, text);
@@ -583,7 +583,7 @@ protocol::JobSpec Engine::set_paused(const std::string& id, bool paused) {
     job->spec.paused = paused;
     scheduler_->set_paused(id, paused);
     spec = job->spec;
-    text = protocol::to_json(spec).dump(2);
+    text = protocol::to_json(spec).dump(2, ' ', false, json::error_handler_t::replace);
   }
   store_.save_job(id, text);
   events_.publish("job",
@@ -629,11 +629,29 @@ json Engine::upload(const std::string& id, const std::string& frame, const std::
                     const std::string& body) {
   check_upload(id, frame, pass);
   if (body.empty()) throw ApiError(400, "invalid_pass", "empty body");
-  return upload_spooled(id, frame, pass, store_.spool_upload(id, parse_frame(frame), pass, body));
+  const std::uint64_t hash =
+      hash_bytes({reinterpret_cast<const unsigned char*>(body.data()), body.size()});
+  const long f = parse_frame(frame);
+  return store_upload(id, frame, pass, store_.spool_upload(id, f, pass, body), hash, body.size());
 }
 
 json Engine::upload_spooled(const std::string& id, const std::string& frame,
                             const std::string& pass, const fs::path& spooled) {
+  std::uint64_t hash = 0, size = 0;
+  {
+    const auto bytes = read_file(spooled);
+    if (!bytes) {
+      store_.remove_file(spooled);
+      throw ApiError(500, "internal", "the stored upload cannot be read back");
+    }
+    hash = hash_bytes(std::span<const unsigned char>(*bytes));
+    size = bytes->size();
+  }
+  return store_upload(id, frame, pass, spooled, hash, size);
+}
+
+json Engine::store_upload(const std::string& id, const std::string& frame, const std::string& pass,
+                          const fs::path& spooled, std::uint64_t hash, std::uint64_t size) {
   struct Spool {  // removed unless it became the stored upload
     const JobStore& store;
     fs::path path;
@@ -643,19 +661,17 @@ json Engine::upload_spooled(const std::string& id, const std::string& frame,
   } tmp{store_, spooled};
   check_upload(id, frame, pass);
   const long f = parse_frame(frame);
-  const auto bytes = read_file(spooled);
-  if (!bytes) throw ApiError(500, "internal", "the stored upload cannot be read back");
-  if (bytes->empty()) throw ApiError(400, "invalid_pass", "empty body");
-  const std::uint64_t hash = hash_bytes(std::span<const unsigned char>(*bytes));
-  const std::uint64_t size = bytes->size();
-  json answer = {{"job", id}, {"frame", f}, {"pass", pass}, {"bytes", size}};
+  if (size == 0) throw ApiError(400, "invalid_pass", "empty body");
+  auto answer = [&](const char* status) {
+    return json{{"job", id}, {"frame", f}, {"pass", pass}, {"bytes", size}, {"status", status}};
+  };
   auto settled = [&](UploadFit fit) -> std::optional<json> {
     if (fit == UploadFit::conflict) {
       throw ApiError(409, "conflict",
                      "frame " + frame + " already has pass " + pass + " with other content");
     }
-    if (fit == UploadFit::ingested) return answer.update({{"status", "ingested"}}), answer;
-    if (fit == UploadFit::queued) return answer.update({{"status", "queued"}}), answer;
+    if (fit == UploadFit::ingested) return answer("ingested");
+    if (fit == UploadFit::queued) return answer("queued");
     return std::nullopt;
   };
   {
@@ -702,7 +718,7 @@ json Engine::upload_spooled(const std::string& id, const std::string& frame,
     enqueue(*job, f);
   }
   metrics_.inc("proden_uploads_total");
-  return answer.update({{"status", "queued"}}), answer;
+  return answer("queued");
 }
 
 protocol::FrameStatus Engine::status(const Job& job, const Frame& fr) const {

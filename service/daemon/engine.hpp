@@ -120,6 +120,10 @@ class Engine {
   // What an upload of (frame, pass) with these bytes is, given what the frame has.
   enum class UploadFit { fresh, queued, ingested, conflict };
   UploadFit fit(const Frame& fr, const std::string& pass, std::uint64_t hash) const;
+  // Checks a spooled upload (content `hash`, `size` bytes) and claims, stores and queues it.
+  nlohmann::json store_upload(const std::string& id, const std::string& frame,
+                              const std::string& pass, const std::filesystem::path& spooled,
+                              std::uint64_t hash, std::uint64_t size);
 
   void load_state();
   void load_job(const std::filesystem::path& dir);

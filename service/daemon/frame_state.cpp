@@ -75,7 +75,8 @@ void save_frame_state(const fs::path& path, const FrameRecord& record,
       throw std::invalid_argument(path.string() + ": refusing to persist a non-finite " + name);
     }
   }
-  const std::string text = to_json(record).dump();
+  // Invalid UTF-8 (a message quoting a file) is replaced, never a reason to fail the commit.
+  const std::string text = to_json(record).dump(-1, ' ', false, json::error_handler_t::replace);
   const std::vector<std::uint8_t> blob = frame.serialize();
   std::vector<std::uint8_t> out(sizeof kMagic + 32 + text.size() + blob.size());
   std::size_t at = 0;

@@ -102,7 +102,7 @@ void JobStore::sync_dir(const fs::path& dir) const {
 void JobStore::create_job(const protocol::JobSpec& spec) {
   fs::create_directories(job_dir(spec.id) / "frames");
   fs::create_directories(job_dir(spec.id) / "uploads");
-  save_job(spec.id, protocol::to_json(spec).dump(2));
+  save_job(spec.id, protocol::to_json(spec).dump(2, ' ', false, json::error_handler_t::replace));
   sync_dir(jobs_);
 }
 

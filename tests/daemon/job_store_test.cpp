@@ -231,3 +231,17 @@ TEST_CASE("JobStore: an upload's directory entries are durable before it is ackn
   REQUIRE(renamed >= 0);
   CHECK(synced > renamed);
 }
+
+TEST_CASE("JobStore: a record quoting invalid UTF-8 is still saved and read back",
+          "[daemon][job_store]") {
+  test::TempDir t;
+  JobStore store(t.path() / "state");
+  store.create_job(spec_for(t, "j1"));
+  const FrameAccumulator acc = one_pass_frame(6);
+  FrameRecord r = record_of(1, acc, "00");
+  r.ingested[0].source = std::string("/w/\xff\xfe/00.exr");  // bytes from a file system
+  REQUIRE_NOTHROW(store.save_frame("j1", r, acc));
+  const auto back = store.load_frame("j1", 1);
+  CHECK(back.acc.state_digest() == acc.state_digest());
+  CHECK(back.record.ingested.at(0).pass == "00");
+}

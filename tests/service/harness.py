@@ -16,11 +16,14 @@ SAMPLES = os.environ.get("PRODEN_SAMPLES_DIR", "samples")
 CORNELL = [os.path.join(SAMPLES, "renders", "cornell", "pass_%02d.exr" % i) for i in range(8)]
 
 FAST_WATCH = {"poll_interval_ms": 400, "settle_ms": 250, "tick_ms": 50, "max_attempts": 2}
+# A ThreadSanitizer-built daemon (PRODEN_TSAN) runs the pipeline several times slower: waits for
+# results stretch by this factor.
+SLOWDOWN = 5.0 if os.environ.get("PRODEN_TSAN") else 1.0
 
 
 def wait_until(pred, timeout=20.0, interval=0.05, what="condition"):
     """Polls pred() until it returns a truthy value (returned) or the timeout passes (raises)."""
-    deadline = time.monotonic() + timeout
+    deadline = time.monotonic() + timeout * SLOWDOWN
     while True:
         v = pred()
         if v:
