@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <string_view>
 
+#include "daemon/colour_map.hpp"
 #include "proden/io/image_writer.hpp"
 #include "proden/network/builtin.hpp"
 #include "proden/progressive.hpp"
@@ -34,11 +35,12 @@ ProcessedFrame FrameProcessor::process(const FrameEstimate& estimate,
   out.layers.emplace_back("render", estimate.mean);
   out.layers.emplace_back("variance", estimate.variance);
   const auto var = estimate.variance.data();
+  double sum = 0.0;
+  for (float x : var) sum += static_cast<double>(x);
+  out.render_mse = var.empty() ? 0.0 : sum / static_cast<double>(var.size());
   if (spec.denoiser == "none") {  // publish the accumulated render; its own error is Var[x]
     out.result = estimate.mean;
-    double sum = 0.0;
-    for (float x : var) sum += static_cast<double>(x);
-    out.estimated_mse = var.empty() ? 0.0 : sum / static_cast<double>(var.size());
+    out.estimated_mse = out.render_mse;
     out.estimated_mse_source = "variance";
     return out;
   }
@@ -124,23 +126,24 @@ Image read_layer(const std::string& exr_path, const std::string& layer) {
   return img;
 }
 
-void write_png_preview(const std::string& path, const Image& rgb) {
-  Image out(rgb.width(), rgb.height(), 3);
+void write_png(const std::string& path, const Rgb8& image) {
+  Image planar(image.width, image.height, 3);
+  const std::size_t n = planar.pixels();
   for (int c = 0; c < 3; ++c) {
-    auto src = rgb.plane(std::min(c, rgb.channels() - 1));
-    auto dst = out.plane(c);
-    for (std::size_t p = 0; p < src.size(); ++p) {
-      float x = std::isfinite(src[p]) ? std::max(src[p], 0.0f) : 0.0f;
-      x = x / (1.0f + x);
-      x = x <= 0.0031308f ? 12.92f * x : 1.055f * std::pow(x, 1.0f / 2.4f) - 0.055f;
-      dst[p] = std::clamp(x, 0.0f, 1.0f);
+    auto dst = planar.plane(c);
+    for (std::size_t p = 0; p < n; ++p) {
+      dst[p] = static_cast<float>(image.data[p * 3 + static_cast<std::size_t>(c)]) / 255.0f;
     }
   }
   std::vector<io::NamedChannel> channels;
-  io::add_layer(channels, "", out);
+  io::add_layer(channels, "", planar);
   io::WriteOptions w;
   w.compression = "";
-  io::write_image(path, out.width(), out.height(), channels, w);
+  io::write_image(path, planar.width(), planar.height(), channels, w);
+}
+
+void write_png_preview(const std::string& path, const Image& rgb) {
+  write_png(path, tone_map(rgb, 0.0));
 }
 
 }  // namespace proden::daemon

@@ -18,6 +18,7 @@ struct ProcessedFrame {
   std::vector<std::pair<std::string, Image>> layers;  // "render", "variance", later "denoised"...
   double estimated_mse = 0.0;                         // the pipeline's own error estimate
   std::string estimated_mse_source = "variance";      // "variance" until SURE is available
+  double render_mse = 0.0;  // the plain render's own error estimate: mean Var[x] (the baseline)
   std::vector<std::pair<std::string, double>> stage_seconds;
 };
 
@@ -40,7 +41,12 @@ bool known_layer(const std::string& layer);
 // Reads layer `layer` ("result" = R,G,B) of a published EXR; empty Image if absent.
 Image read_layer(const std::string& exr_path, const std::string& layer);
 
-// Tone-maps linear RGB for viewing (Reinhard x/(1+x) per channel, then sRGB) and writes a PNG.
+// Writes an 8-bit sRGB image as a PNG, atomically.
+struct Rgb8;
+void write_png(const std::string& path, const Rgb8& image);
+
+// Tone-maps linear RGB for viewing (colour_map.hpp's tone_map at exposure 0: Reinhard x/(1+x)
+// per channel, then sRGB) and writes a PNG.
 void write_png_preview(const std::string& path, const Image& rgb);
 
 }  // namespace proden::daemon
