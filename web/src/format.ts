@@ -4,8 +4,11 @@ export function sci(x: number | null | undefined, digits = 2): string {
   if (x === null || x === undefined || !Number.isFinite(x)) return '–';
   if (x === 0) return '0';
   const a = Math.abs(x);
-  if (a >= 0.01 && a < 1000) return x.toPrecision(digits + 1).replace(/\.?0+$/, '');
-  return x.toExponential(digits - 1).replace('e', 'e');
+  if (a >= 0.01 && a < 1000) {
+    const s = x.toPrecision(digits + 1);
+    return s.includes('.') && !s.includes('e') ? s.replace(/0+$/, '').replace(/\.$/, '') : s;
+  }
+  return x.toExponential(digits - 1).replace('e+', 'e');
 }
 
 export function fixed(x: number | null | undefined, digits = 1): string {

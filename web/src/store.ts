@@ -47,7 +47,7 @@ export function frameAfterEvent(prev: FrameStatus | undefined, e: FrameEvent): F
     estimated_mse: e.estimated_mse,
     estimated_error: e.estimated_error ?? prev?.estimated_error,
     converged: e.converged ?? prev?.converged,
-    pending: prev?.pending ?? false,
+    pending: false, // this run ended; a snapshot tells whether more passes wait
   };
 }
 
@@ -59,14 +59,9 @@ export interface Throughput {
 /**
  * Passes ingested and versions published per minute over the `windowMs` before `now`, from the
  * frames' versions (a version's new passes = its pass count minus the previous version's). The
- * window is shortened to what has been observed when less (`since`), never below 10 s.
+ * window starts no earlier than the first version seen, and spans at least 10 s.
  */
-export function throughput(
-  versions: Map<number, Version[]>,
-  now: number,
-  windowMs = 5 * 60_000,
-  since = -Infinity,
-): Throughput {
+export function throughput(versions: Map<number, Version[]>, now: number, windowMs = 5 * 60_000): Throughput {
   const from = now - windowMs;
   let passes = 0;
   let updates = 0;
@@ -83,7 +78,7 @@ export function throughput(
       prevPasses = v.passes;
     }
   }
-  const start = Math.max(from, Math.min(since, first));
+  const start = Math.max(from, first);
   const span = Math.max(now - start, 10_000);
   return { passesPerMin: (passes * 60_000) / span, updatesPerMin: (updates * 60_000) / span };
 }

@@ -17,7 +17,7 @@ export function pauseButton(ctx: Ctx, jobId: string): HTMLButtonElement {
     class: 'pause',
     'data-action': paused ? 'resume' : 'pause',
     'aria-label': `${paused ? 'Resume' : 'Pause'} job ${d?.job.name ?? jobId}`,
-    text: paused ? '▶ Resume' : '⏸ Pause',
+    text: paused ? '▶ Resume' : '‖ Pause',
   });
   b.addEventListener('click', async () => {
     b.disabled = true;

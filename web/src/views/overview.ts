@@ -171,6 +171,6 @@ export class OverviewView implements View {
 }
 
 export function stateChip(state: string): HTMLElement {
-  const icon = state === 'paused' ? '⏸' : '▶';
+  const icon = state === 'paused' ? '‖' : '▶';
   return el('span', { class: `chip state-${state}`, text: `${icon} ${state}` });
 }
