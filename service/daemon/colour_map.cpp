@@ -131,8 +131,9 @@ ScalarRange auto_log_range(std::span<const float> values) {
     return static_cast<double>(pos[k]);
   };
   const double p01 = at(0.01), p99 = at(0.99);
-  double hi = std::ceil(std::log10(p99));
-  double lo = std::floor(std::log10(p01));
+  // A value on a decade (1e-4 stored as a float) must not widen the range by a decade.
+  double hi = std::ceil(std::log10(p99) - 1e-5);
+  double lo = std::floor(std::log10(p01) + 1e-5);
   if (hi <= lo) hi = lo + 1.0;
   lo = std::max(lo, hi - 8.0);
   r.lo = std::pow(10.0, lo);

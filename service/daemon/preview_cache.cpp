@@ -151,8 +151,9 @@ PreviewCache::File PreviewCache::get(const fs::path& cache_dir, const fs::path& 
   }
   fs::create_directories(cache_dir, ec);
   for (fs::directory_iterator it(cache_dir, ec), end; !ec && it != end; it.increment(ec)) {
+    // Older versions' renditions go; this version's other variants (sizes, exposures) stay.
     const std::string f = it->path().filename().string();
-    if (f.rfind(stem, 0) == 0 && f.compare(stem.size(), variant.size() + 1, variant + ".") != 0) {
+    if (f.rfind(stem, 0) == 0 && f.rfind(stem + "v" + std::to_string(version) + ".", 0) != 0) {
       fs::remove(it->path(), ec);
     }
   }
