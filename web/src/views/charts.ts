@@ -14,10 +14,17 @@ function axisValues(_u: uPlot, vals: number[]): string[] {
   return vals.map((v) => (v === null || v === undefined ? '' : sci(v, 1)));
 }
 
-function logAxes(xLabel: string): uPlot.Axis[] {
+/** x ticks at the data's own spp levels (at most 8), which a log axis spanning less than a decade lacks. */
+function dataSplits(u: uPlot): number[] {
+  const xs = [...new Set((u.data[0] as number[]).filter((x) => x > 0))];
+  const step = Math.ceil(xs.length / 8);
+  return xs.filter((_, i) => i % step === 0 || i === xs.length - 1);
+}
+
+function logAxes(xLabel: string, xAtData: boolean): uPlot.Axis[] {
   const common = { stroke: '#c9d1d9', grid: { stroke: '#30363d', width: 1 }, ticks: { stroke: '#30363d' } };
   return [
-    { ...common, label: xLabel, values: axisValues },
+    { ...common, label: xLabel, values: axisValues, ...(xAtData ? { splits: dataSplits, filter: (_u: uPlot, s: number[]) => s } : {}) },
     { ...common, label: 'estimated MSE', values: axisValues, size: 64 },
   ];
 }
@@ -85,7 +92,7 @@ export class FrameChart extends Chart {
         ...this.size(),
         title: 'Estimated error per version',
         scales: { x: { distr: 3, log: 10 }, y: { distr: 3, log: 10 } },
-        axes: logAxes(xLabel),
+        axes: logAxes(xLabel, axis === 'spp'),
         legend: { live: true },
         cursor: { drag: { x: false, y: false } },
         series: [
@@ -126,7 +133,7 @@ export class ShotChart extends Chart {
         ...this.size(),
         title: 'Shot: estimated error across frames',
         scales: { x: { distr: 3, log: 10 }, y: { distr: 3, log: 10 } },
-        axes: logAxes('samples per pixel'),
+        axes: logAxes('samples per pixel', true),
         cursor: { drag: { x: false, y: false } },
         bands: [{ series: [3, 1], fill: BAND }],
         series: [

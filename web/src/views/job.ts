@@ -271,6 +271,7 @@ export class JobView implements View {
   private flush(frames: Set<number>): void {
     const d = this.data;
     if (!d) return;
+    const t0 = performance.now();
     for (const n of frames) {
       const f = d.frames.get(n);
       let t = this.tiles.get(n);
@@ -286,6 +287,7 @@ export class JobView implements View {
       first.a.tabIndex = 0;
       this.focused = first.frame;
     }
+    performance.measure('grid-flush', { start: t0 }); // read by web/bench/load.mjs
     this.slow();
   }
 
@@ -294,8 +296,12 @@ export class JobView implements View {
     if (this.slowTimer !== undefined) return;
     this.slowTimer = window.setTimeout(() => {
       this.slowTimer = undefined;
+      const t0 = performance.now();
       this.renderHeader();
+      performance.measure('job-header', { start: t0 });
+      const t1 = performance.now();
       this.renderChart();
+      performance.measure('shot-chart', { start: t1 });
     }, 500);
   }
 
@@ -333,7 +339,7 @@ export class JobView implements View {
   private patch(t: Tile, f: FrameStatus): void {
     const err = errorOf(f);
     const extra = f.estimated_error?.equivalent_spp ? ` · ≈${fixed(f.estimated_error.equivalent_spp, 0)} spp eq.` : '';
-    t.stats.textContent = `v${f.version} · ${f.passes} passes · ${fixed(f.spp, 0)} spp · err ${sci(err)}${extra}`;
+    t.stats.textContent = `v${f.version} · ${f.passes} pass${f.passes === 1 ? '' : 'es'} · ${fixed(f.spp, 0)} spp · err ${sci(err)}${extra}`;
     t.a.dataset.version = String(f.version);
     const st = f.converged ? '✓ converged' : f.pending ? '… pending' : f.version === 0 ? '○ waiting' : '';
     t.status.textContent = st;

@@ -76,8 +76,17 @@ describe('dashboard against the real daemon', () => {
       'tile 2 was patched, not rebuilt',
     );
     assert.match(await page.locator('.tile[data-frame="1"] .stats').textContent(), /v2 · 2 passes/);
-    for (const f of [2, 3, 4]) feed(f);
-    await waitFor(async () => (await tileVersion(4)) >= 2, 'frame 4 version 2');
+    for (const f of [2, 3, 4, 1, 2, 3]) feed(f);
+    // Passes that arrive while a frame runs coalesce into one version: wait for the daemon to take
+    // every pass, then for every tile to show the daemon's version.
+    const settled = await waitFor(async () => {
+      const fs = await d.frames(job.id);
+      return FRAMES.every((f) => fs.get(f)?.passes === placed.get(f) && !fs.get(f).pending) && fs;
+    }, 'the daemon to take every pass');
+    await waitFor(async () => {
+      for (const f of FRAMES) if ((await tileVersion(f)) !== settled.get(f).version) return false;
+      return (await page.locator('.tile .status.pending').count()) === 0;
+    }, 'every tile to show its latest version');
     await page.screenshot({ path: artefact('live_shot.png'), fullPage: true });
   });
 
