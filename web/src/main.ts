@@ -105,6 +105,15 @@ const stream = new EventStream({
       const ee = data as ErrorEvent;
       store.applyErrorEvent(ee);
       view?.onError?.(ee);
+    } else {
+      // Other events that name a frame and its `converged` state (the farm integration's).
+      const c = data as { job?: string; frame?: number; converged?: boolean };
+      if (typeof c.job === 'string' && typeof c.frame === 'number' && typeof c.converged === 'boolean') {
+        if (store.applyConverged(c.job, c.frame, c.converged)) {
+          const f = store.jobs.get(c.job)?.frames.get(c.frame);
+          if (f) view?.onFrame?.({ ...f, name: '', new_passes: 0, updated: f.updated ?? '' });
+        }
+      }
     }
   },
 });

@@ -225,6 +225,17 @@ export class Store {
     return historyChanged || next !== null;
   }
 
+  /**
+   * An event that says a frame converged (or not) without publishing a version (the farm
+   * integration's `converged` event): sets the flag; true when it changed.
+   */
+  applyConverged(jobId: string, frame: number, converged: boolean): boolean {
+    const f = this.jobs.get(jobId)?.frames.get(frame);
+    if (!f || f.converged === converged) return false;
+    this.jobs.get(jobId)!.frames.set(frame, { ...f, converged });
+    return true;
+  }
+
   applyErrorEvent(e: ErrorEvent): boolean {
     const d = this.jobs.get(e.job);
     if (!d) return false;

@@ -60,6 +60,19 @@ describe('Store', () => {
     expect(s.setFrames('j1', [f(2, 2)])).toEqual([1]);
   });
 
+  it('takes a converged event for a known frame', () => {
+    const s = new Store();
+    s.setJobs([job]);
+    expect(s.applyConverged('j1', 1, true)).toBe(false); // no such frame yet
+    s.applyFrameEvent(ev(1, v(1, 1, 4, 0.2, 1)));
+    expect(s.applyConverged('j1', 1, true)).toBe(true);
+    expect(s.applyConverged('j1', 1, true)).toBe(false);
+    expect(s.jobs.get('j1')!.frames.get(1)!.converged).toBe(true);
+    // a later version keeps the flag unless its event says otherwise
+    s.applyFrameEvent(ev(1, v(2, 2, 8, 0.1, 2)));
+    expect(s.jobs.get('j1')!.frames.get(1)!.converged).toBe(true);
+  });
+
   it('bounds the error list', () => {
     const s = new Store();
     s.setJobs([job]);
