@@ -8,7 +8,9 @@
 #include <memory>
 
 #include "cli/commands.hpp"
+#include "cli/options.hpp"
 #include "daemon/serve.hpp"
+#include "proden/protocol/publish.hpp"
 
 namespace {
 
@@ -32,7 +34,7 @@ int main(int argc, char** argv) {
   spdlog::set_default_logger(logger);
 
   CLI::App app{"proden: progressive denoising of render-farm passes"};
-  app.set_version_flag("--version", std::string("proden ") + PRODEN_VERSION);
+  app.set_version_flag("--version", protocol::software());
   app.require_subcommand(1);
   int threads = 0;
   bool verbose = false;
@@ -52,45 +54,9 @@ int main(int argc, char** argv) {
   d->add_flag("--json", den.json, "Print a JSON summary of the frame on stdout");
   d->add_flag("-q,--quiet", quiet, "No progress display");
   d->add_option("passes", den.passes, "Pass files of one frame")->required();
-  std::string divergence = "auto", mixer = "closed-form", rule = "stein", denoiser = "nlmeans";
-  d->add_option("--denoiser", denoiser,
-                "nlmeans (feature-guided, default) or gaussian (fast, biased reference)")
-      ->check(CLI::IsMember({"nlmeans", "gaussian"}))
-      ->capture_default_str();
-  d->add_option("--divergence", divergence,
-                "SURE divergence: auto (analytic when the denoiser offers it), analytic, mc")
-      ->check(CLI::IsMember({"auto", "analytic", "mc"}))
-      ->capture_default_str();
-  d->add_option("--probes", den.pipeline.probes.count, "Monte-Carlo probes for --divergence mc")
-      ->check(CLI::Range(1, 64))
-      ->capture_default_str();
-  mixer = network::kDefaultMixer;
-  d->add_option("--mixer", mixer,
-                "Mixing weights: network (the learned PDNet) or closed-form (Stein window rule)")
-      ->check(CLI::IsMember({"network", "closed-form"}))
-      ->capture_default_str();
-  d->add_option("--weights", den.weights,
-                "Network weights file (.pdnw) instead of the built-in ones (--mixer network)");
-  d->add_option("--closed-form-rule", rule,
-                "stein (MSE-optimal, accounts for y depending on x) or inverse-error")
-      ->check(CLI::IsMember({"stein", "inverse-error"}))
-      ->capture_default_str();
-  d->add_flag("!--no-ttest", den.pipeline.t_test, "Skip the t-statistic rescale of alpha");
-  d->add_flag("!--no-ttest-dof", den.pipeline.ttest.dof_correction,
-              "The authors' fixed t-test threshold (no degrees-of-freedom correction)");
-  d->add_option("--mixer-radius", den.pipeline.mixer.radius,
-                "Closed-form mixer: window radius of its smoothed estimates")
-      ->check(CLI::Range(0, 16))
-      ->capture_default_str();
-  d->add_option("--tile", den.pipeline.tile, "Tile size in pixels")
-      ->check(CLI::Range(8, 4096))
-      ->capture_default_str();
-  d->add_option("--search-radius", den.pipeline.nlmeans.search_radius, "NL-means search radius")
-      ->check(CLI::Range(0, 32))
-      ->capture_default_str();
-  d->add_option("--patch-radius", den.pipeline.nlmeans.patch_radius, "NL-means patch radius")
-      ->check(CLI::Range(0, 16))
-      ->capture_default_str();
+  // The pipeline's options, spelt as the daemon's job JSON spells them (docs/api.md).
+  cli::PipelineFlags pipeline_flags;
+  pipeline_flags.add_to(*d);
   d->add_flag("--timings", den.timings, "Print the time of each stage");
 
   cli::EvalOptions ev;
@@ -124,15 +90,7 @@ int main(int argc, char** argv) {
   const auto r = io::parse_renderer(renderer).value_or(io::Renderer::automatic);
   den.input.renderer = ev.input.renderer = inf.input.renderer = r;
   den.progress = !quiet;
-  den.pipeline.features = den.input.features;
-  den.pipeline.denoiser =
-      denoiser == "gaussian" ? BuiltinDenoiser::gaussian : BuiltinDenoiser::nlmeans;
-  den.pipeline.divergence = divergence == "analytic" ? DivergenceMethod::analytic
-                            : divergence == "mc"     ? DivergenceMethod::monte_carlo
-                                                     : DivergenceMethod::automatic;
-  den.mixer = mixer;
-  den.pipeline.mixer.rule =
-      rule == "inverse-error" ? ClosedFormRule::inverse_error : ClosedFormRule::stein;
+  den.pipeline = pipeline_flags.given();
 
   std::unique_ptr<tbb::global_control> limit;
   if (threads > 0) {

@@ -460,7 +460,7 @@ void Engine::run_frame(const std::shared_ptr<Job>& job, long frame_no) {
     auto t0 = Clock::now();
     const FrameEstimate est = acc->estimate({.halves = false, .features = true});
     metrics_.observe("proden_stage_duration_seconds", "estimate", seconds_since(t0));
-    const ProcessedFrame out = FrameProcessor::process(est, spec.pipeline);
+    const ProcessedFrame out = FrameProcessor::process(*acc, est, spec.pipeline);
     for (const auto& [stage, s] : out.stage_seconds) {
       metrics_.observe("proden_stage_duration_seconds", stage, s);
     }
@@ -505,16 +505,8 @@ void Engine::run_frame(const std::shared_ptr<Job>& job, long frame_no) {
     }
     t0 = Clock::now();
     fs::create_directories(spec.output.dir);
-    const std::vector<std::pair<std::string, std::string>> attrs = {
-        {"Software", std::string("proden ") + PRODEN_VERSION},
-        {"proden:passes", std::to_string(rec.passes)},
-        {"proden:spp", std::to_string(rec.spp)},
-        {"proden:inputs", rec.inputs},
-        {"proden:variance_source", rec.variance_source},
-        {"proden:low_confidence", rec.low_confidence ? "true" : "false"},
-    };
     const auto outputs =
-        FrameProcessor::publish(out, output_base(*job, frame_no).string(), spec.output.png, attrs);
+        FrameProcessor::publish(out, output_base(*job, frame_no).string(), spec.output.png);
     write_file_atomic(fs::path(state_file).replace_extension(".pub"), std::to_string(rec.version));
     metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
     {
@@ -855,8 +847,7 @@ Engine::ImageFile Engine::image(const std::string& id, long frame, const std::st
     throw ApiError(400, "invalid_parameter", "format must be exr or png");
   }
   if (!layer.empty() && !known_layer(layer)) {
-    throw ApiError(400, "invalid_parameter",
-                   "layer must be one of result, render, variance, denoised, alpha, sure");
+    throw ApiError(400, "invalid_parameter", "layer must be one of " + known_layers());
   }
   fs::path exr, cache;
   std::uint64_t version = 0;
