@@ -10,7 +10,9 @@ namespace {
 
 constexpr std::string_view kAuto = "auto";
 
-std::string mixer_name(MixerKind k) { return k == MixerKind::network ? "network" : "closed-form"; }
+std::string mixer_name(MixerKind k) {
+  return k == MixerKind::network ? "network" : "closed-form";
+}
 
 std::string joined(const std::vector<std::string>& v) {
   std::string s;
@@ -31,21 +33,25 @@ std::vector<PipelineOptionInfo> build_table() {
   using K = OptionKind;
   using O = PipelineOptions;
   std::vector<PipelineOptionInfo> t = {
-      {PipelineOption::denoiser, "--denoiser", K::choice, denoiser_names, 0, 0, true,
-       denoiser_help,
+      {PipelineOption::denoiser, "--denoiser", K::choice, denoiser_names, 0, 0, true, denoiser_help,
        [](O& o, const json& v) {
          const auto s = v.get<std::string>();
          o.denoiser = s == kAuto ? std::string(kDefaultDenoiser) : s;
        },
        [](const O& o) { return json(o.denoiser); }},
-      {PipelineOption::mixer, "--mixer", K::choice,
-       {"auto", "network", "closed-form", "stein", "inverse-error"}, 0, 0, true,
+      {PipelineOption::mixer,
+       "--mixer",
+       K::choice,
+       {"auto", "network", "closed-form", "stein", "inverse-error"},
+       0,
+       0,
+       true,
        "Mixing weights: auto (= " + mixer_name(kDefaultMixerKind) +
            "), network (the learned PDNet), closed-form (rule from --closed-form-rule), or a "
            "closed-form rule by name: stein, inverse-error",
        [](O& o, const json& v) {
          const auto s = v.get<std::string>();
-         o.mixer = s == kAuto ? kDefaultMixerKind
+         o.mixer = s == kAuto       ? kDefaultMixerKind
                    : s == "network" ? MixerKind::network
                                     : MixerKind::closed_form;
          // `stein` and `inverse-error` name the closed-form mixer with that rule.
@@ -53,26 +59,50 @@ std::vector<PipelineOptionInfo> build_table() {
          if (s == "inverse-error") o.closed_form.rule = ClosedFormRule::inverse_error;
        },
        [](const O& o) { return json(mixer_name(o.mixer)); }},
-      {PipelineOption::closed_form_rule, "--closed-form-rule", K::choice,
-       {"stein", "inverse-error"}, 0, 0, true,
+      {PipelineOption::closed_form_rule,
+       "--closed-form-rule",
+       K::choice,
+       {"stein", "inverse-error"},
+       0,
+       0,
+       true,
        "Closed-form mixer rule: stein (MSE-optimal, accounts for y depending on x) or "
        "inverse-error",
        [](O& o, const json& v) {
-         o.closed_form.rule =
-             v.get<std::string>() == "stein" ? ClosedFormRule::stein : ClosedFormRule::inverse_error;
+         o.closed_form.rule = v.get<std::string>() == "stein" ? ClosedFormRule::stein
+                                                              : ClosedFormRule::inverse_error;
        },
        [](const O& o) {
          return json(o.closed_form.rule == ClosedFormRule::stein ? "stein" : "inverse-error");
        }},
-      {PipelineOption::mixer_radius, "--mixer-radius", K::integer, {}, 0, 16, true,
+      {PipelineOption::mixer_radius,
+       "--mixer-radius",
+       K::integer,
+       {},
+       0,
+       16,
+       true,
        "Closed-form mixer: window radius of its smoothed estimates",
        [](O& o, const json& v) { o.closed_form.radius = v.get<int>(); },
        [](const O& o) { return json(o.closed_form.radius); }},
-      {PipelineOption::weights, "--weights", K::text, {}, 0, 0, false,
-       "Network weights file (.pdnw) instead of the built-in ones (mixer network)", nullptr,
+      {PipelineOption::weights,
+       "--weights",
+       K::text,
+       {},
+       0,
+       0,
+       false,
+       "Network weights file (.pdnw) instead of the built-in ones (mixer network)",
+       nullptr,
        nullptr},
-      {PipelineOption::divergence, "--divergence", K::choice, {"auto", "analytic", "mc"}, 0, 0,
-       true, "SURE divergence: auto (analytic when the denoiser offers it), analytic, mc",
+      {PipelineOption::divergence,
+       "--divergence",
+       K::choice,
+       {"auto", "analytic", "mc"},
+       0,
+       0,
+       true,
+       "SURE divergence: auto (analytic when the denoiser offers it), analytic, mc",
        [](O& o, const json& v) {
          const auto s = v.get<std::string>();
          o.divergence = s == "analytic" ? DivergenceMethod::analytic
@@ -84,30 +114,73 @@ std::vector<PipelineOptionInfo> build_table() {
                      : o.divergence == DivergenceMethod::monte_carlo ? "mc"
                                                                      : "auto");
        }},
-      {PipelineOption::probes, "--probes", K::integer, {}, 1, 64, true,
+      {PipelineOption::probes,
+       "--probes",
+       K::integer,
+       {},
+       1,
+       64,
+       true,
        "Monte-Carlo probes for divergence mc",
        [](O& o, const json& v) { o.probes.count = v.get<int>(); },
        [](const O& o) { return json(o.probes.count); }},
-      {PipelineOption::t_test, "--no-ttest", K::boolean, {}, 0, 0, true,
+      {PipelineOption::t_test,
+       "--no-ttest",
+       K::boolean,
+       {},
+       0,
+       0,
+       true,
        "Skip the t-statistic rescale of alpha",
        [](O& o, const json& v) { o.t_test = v.get<bool>(); },
        [](const O& o) { return json(o.t_test); }},
-      {PipelineOption::ttest_dof, "--no-ttest-dof", K::boolean, {}, 0, 0, true,
+      {PipelineOption::ttest_dof,
+       "--no-ttest-dof",
+       K::boolean,
+       {},
+       0,
+       0,
+       true,
        "The authors' fixed t-test threshold (no degrees-of-freedom correction)",
        [](O& o, const json& v) { o.ttest.dof_correction = v.get<bool>(); },
        [](const O& o) { return json(o.ttest.dof_correction); }},
-      {PipelineOption::features, "--no-features", K::boolean, {}, 0, 0, true,
+      {PipelineOption::features,
+       "--no-features",
+       K::boolean,
+       {},
+       0,
+       0,
+       true,
        "Ignore albedo/normal/depth even if the passes carry them",
        [](O& o, const json& v) { o.features = v.get<bool>(); },
        [](const O& o) { return json(o.features); }},
-      {PipelineOption::tile, "--tile", K::integer, {}, 8, 4096, true, "Tile size in pixels",
+      {PipelineOption::tile,
+       "--tile",
+       K::integer,
+       {},
+       8,
+       4096,
+       true,
+       "Tile size in pixels",
        [](O& o, const json& v) { o.tile = v.get<int>(); },
        [](const O& o) { return json(o.tile); }},
-      {PipelineOption::search_radius, "--search-radius", K::integer, {}, 0, 32, true,
+      {PipelineOption::search_radius,
+       "--search-radius",
+       K::integer,
+       {},
+       0,
+       32,
+       true,
        "NL-means search radius",
        [](O& o, const json& v) { o.nlmeans.search_radius = v.get<int>(); },
        [](const O& o) { return json(o.nlmeans.search_radius); }},
-      {PipelineOption::patch_radius, "--patch-radius", K::integer, {}, 0, 16, true,
+      {PipelineOption::patch_radius,
+       "--patch-radius",
+       K::integer,
+       {},
+       0,
+       16,
+       true,
        "NL-means patch radius",
        [](O& o, const json& v) { o.nlmeans.patch_radius = v.get<int>(); },
        [](const O& o) { return json(o.nlmeans.patch_radius); }},
@@ -130,9 +203,8 @@ std::vector<PipelineOptionInfo> build_table() {
 void check_value(const PipelineOptionInfo& info, const json& v) {
   switch (info.kind) {
     case OptionKind::choice:
-      if (!v.is_string() ||
-          std::find(info.choices.begin(), info.choices.end(), v.get<std::string>()) ==
-              info.choices.end()) {
+      if (!v.is_string() || std::find(info.choices.begin(), info.choices.end(),
+                                      v.get<std::string>()) == info.choices.end()) {
         bad(info, "must be one of " + joined(info.choices));
       }
       return;
@@ -192,9 +264,9 @@ PipelineOptions parse_pipeline_options(const json& given) {
   const auto mixer = given.find("mixer"), rule = given.find("closed_form_rule");
   if (mixer != given.end() && rule != given.end() &&
       (*mixer == "stein" || *mixer == "inverse-error") && *mixer != *rule) {
-    throw PipelineError(PipelineOption::closed_form_rule,
-                        rule->get<std::string>() + " contradicts mixer " +
-                            mixer->get<std::string>());
+    throw PipelineError(
+        PipelineOption::closed_form_rule,
+        rule->get<std::string>() + " contradicts mixer " + mixer->get<std::string>());
   }
   return o;
 }

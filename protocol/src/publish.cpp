@@ -15,7 +15,9 @@ FrameProvenance provenance_of(const FrameAccumulator& frame, const FrameEstimate
   return {frame.passes(), frame.total_spp(), estimate.variance_source, estimate.low_confidence()};
 }
 
-std::string software() { return std::string("proden ") + PRODEN_VERSION; }
+std::string software() {
+  return std::string("proden ") + PRODEN_VERSION;
+}
 
 Attributes header_attributes(const FrameProvenance& frame, const PipelineResult& run) {
   std::ostringstream mse;

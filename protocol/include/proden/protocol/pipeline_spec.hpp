@@ -43,8 +43,8 @@ std::string cli_flag(std::string_view key);
 
 // Options from {key: value}: a job's `pipeline` object, or the CLI flags a user gave. Keys not
 // given keep the library defaults ("auto" resolves to the default denoiser and mixer). Throws
-// PipelineError naming the key: unknown key, wrong type, value not accepted, out of bounds, a CLI-only
-// key, or a closed_form_rule that contradicts mixer stein|inverse-error.
+// PipelineError naming the key: unknown key, wrong type, value not accepted, out of bounds, a
+// CLI-only key, or a closed_form_rule that contradicts mixer stein|inverse-error.
 PipelineOptions parse_pipeline_options(const nlohmann::json& given);
 
 // The options in the same keys and canonical spellings (every job key; weights excluded):

@@ -49,7 +49,8 @@ std::string software();
 Attributes header_attributes(const FrameProvenance& frame, const PipelineResult& run);
 
 // Writes `path` atomically: R,G,B = the result and, with `layers`, every layer of the run, with
-// `attributes` in the header; `half` stores 16-bit halves. Throws std::runtime_error naming the path.
+// `attributes` in the header; `half` stores 16-bit halves. Throws std::runtime_error naming the
+// path.
 void write_frame(const std::string& path, const PipelineResult& run, const Attributes& attributes,
                  bool layers, bool half = false);
 
