@@ -108,6 +108,37 @@ double estimated_result_mse(const Image& x, const Image& variance, const Pipelin
   return std::max(sum, floor) / static_cast<double>(n);
 }
 
+// A denoiser's output over a region with what SURE needs: y, dy/dx (analytic divergence only),
+// the divergence and SURE itself.
+struct Denoised {
+  Buffer y, dydx, div, sure;
+  std::size_t floats() const {
+    return y.capacity() + dydx.capacity() + div.capacity() + sure.capacity();
+  }
+};
+
+// Stage 1 over `region`: y and, for the analytic divergence, the Jacobian diagonal.
+void run_denoiser(const Denoiser& denoiser, const DenoiseInputs& din, const Rect& region,
+                  bool analytic, Denoised& d) {
+  d.y.reset(region, 3);
+  d.dydx.reset(analytic ? region : Rect{}, 3);
+  denoiser.denoise(din, region, d.y, analytic ? &d.dydx : nullptr);
+}
+
+// Stage 2 over `region`: the divergence (from the Jacobian diagonal, or Monte-Carlo probes that
+// re-run the denoiser) and SURE.
+void run_sure(const Denoiser& denoiser, const DenoiseInputs& din, const Rect& region, bool analytic,
+              const MonteCarloProbes& probes, Denoised& d) {
+  d.div.reset(region, 3);
+  if (analytic) {
+    divergence_from_derivative(din.variance, d.dydx, region, d.div);
+  } else {
+    divergence_monte_carlo(denoiser, din, region, d.y, probes, d.div);
+  }
+  d.sure.reset(region, 3);
+  sure(din.colour, din.variance, d.y, d.div, region, d.sure);
+}
+
 [[noreturn]] void fail(PipelineOption option, const std::string& message) {
   throw PipelineError(option, message);
 }
@@ -228,20 +259,19 @@ DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, co
 // denoiser's outputs, and each worker thread's tile buffers.
 struct Pipeline::Scratch {
   struct Tile {
-    Buffer y, dydx, div, sure, alpha, alpha_final, z;
+    Denoised den;
+    Buffer alpha, alpha_final, z;
     std::size_t floats() const {
-      return y.capacity() + dydx.capacity() + div.capacity() + sure.capacity() + alpha.capacity() +
-             alpha_final.capacity() + z.capacity();
+      return den.floats() + alpha.capacity() + alpha_final.capacity() + z.capacity();
     }
   };
-  Image x, var, box_tmp;                          // sanitised x and Var[x], the box filter's pass
-  Buffer full_y, full_dydx, full_div, full_sure;  // a whole-frame denoiser's run
+  Image x, var, box_tmp;  // sanitised x and Var[x], the box filter's pass
+  Denoised full;          // a whole-frame denoiser's run
   tbb::enumerable_thread_specific<Tile> tiles;
 
   std::size_t bytes() const {
-    std::size_t floats = x.data().size() + var.data().size() + box_tmp.data().size() +
-                         full_y.capacity() + full_dydx.capacity() + full_div.capacity() +
-                         full_sure.capacity();
+    std::size_t floats =
+        x.data().size() + var.data().size() + box_tmp.data().size() + full.floats();
     for (const Tile& t : tiles) floats += t.floats();
     return floats * sizeof(float);
   }
@@ -420,18 +450,9 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
   const bool whole = denoiser.whole_frame();
   if (whole) {
     const auto w0 = Clock::now();
-    s.full_y.reset(image, 3);
-    s.full_dydx.reset(analytic_ ? image : Rect{}, 3);
-    denoiser.denoise(din, image, s.full_y, analytic_ ? &s.full_dydx : nullptr);
+    run_denoiser(denoiser, din, image, analytic_, s.full);
     const auto w1 = Clock::now();
-    s.full_div.reset(image, 3);
-    if (analytic_) {
-      divergence_from_derivative(din.variance, s.full_dydx, image, s.full_div);
-    } else {
-      divergence_monte_carlo(denoiser, din, image, s.full_y, o.probes, s.full_div);
-    }
-    s.full_sure.reset(image, 3);
-    sure(din.colour, din.variance, s.full_y, s.full_div, image, s.full_sure);
+    run_sure(denoiser, din, image, analytic_, o.probes, s.full);
     res.timings.denoise += seconds(w0, w1);
     res.timings.sure += seconds(w1, Clock::now());
   }
@@ -457,29 +478,14 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
     const Rect r_mix = tile.expanded(t_pad).intersect(image);    // alpha needed here
 
     const double t0 = thread_cpu();
-    View y, div, sure_v;
     double t1 = t0;
-    if (whole) {
-      y = s.full_y.view();
-      div = s.full_div.view();
-      sure_v = s.full_sure.view();
-    } else {
-      b.y.reset(r_den, 3);
-      b.dydx.reset(analytic_ ? r_den : Rect{}, 3);
-      denoiser.denoise(din, r_den, b.y, analytic_ ? &b.dydx : nullptr);
+    if (!whole) {
+      run_denoiser(denoiser, din, r_den, analytic_, b.den);
       t1 = thread_cpu();
-      b.div.reset(r_den, 3);
-      if (analytic_) {
-        divergence_from_derivative(din.variance, b.dydx, r_den, b.div);
-      } else {
-        divergence_monte_carlo(denoiser, din, r_den, b.y, o.probes, b.div);
-      }
-      b.sure.reset(r_den, 3);
-      sure(din.colour, din.variance, b.y, b.div, r_den, b.sure);
-      y = b.y.view();
-      div = b.div.view();
-      sure_v = b.sure.view();
+      run_sure(denoiser, din, r_den, analytic_, o.probes, b.den);
     }
+    const Denoised& d = whole ? s.full : b.den;
+    const View y = d.y.view(), div = d.div.view(), sure_v = d.sure.view();
     const double t2 = thread_cpu();
 
     const MixInputs mi{W, H, din.colour, y, pooled, sure_v, div};

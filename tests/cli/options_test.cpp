@@ -64,8 +64,7 @@ FrameEstimate frame() {
 
 }  // namespace
 
-TEST_CASE("CLI flags and the job's pipeline object parse to the same options",
-          "[cli][options]") {
+TEST_CASE("CLI flags and the job's pipeline object parse to the same options", "[cli][options]") {
   struct Case {
     std::vector<std::string> flags;
     json job;
@@ -75,13 +74,14 @@ TEST_CASE("CLI flags and the job's pipeline object parse to the same options",
       {{}, {{"denoiser", "auto"}, {"mixer", "auto"}}},
       {{"--mixer", "closed-form", "--closed-form-rule", "inverse-error"},
        {{"mixer", "inverse-error"}}},
-      {{"--mixer", "inverse-error"}, {{"mixer", "closed-form"}, {"closed_form_rule", "inverse-error"}}},
+      {{"--mixer", "inverse-error"},
+       {{"mixer", "closed-form"}, {"closed_form_rule", "inverse-error"}}},
       {{"--mixer", "stein"}, {{"mixer", "closed-form"}}},
       {{"--mixer", "network"}, {{"mixer", "network"}}},
       {{"--denoiser", "gaussian", "--no-ttest", "--tile", "64"},
        {{"denoiser", "gaussian"}, {"t_test", false}, {"tile", 64}}},
-      {{"--no-features", "--no-ttest-dof", "--divergence", "mc", "--probes", "2",
-        "--search-radius", "3", "--patch-radius", "1", "--mixer-radius", "5"},
+      {{"--no-features", "--no-ttest-dof", "--divergence", "mc", "--probes", "2", "--search-radius",
+        "3", "--patch-radius", "1", "--mixer-radius", "5"},
        {{"features", false},
         {"ttest_dof", false},
         {"divergence", "mc"},

@@ -110,7 +110,10 @@ TEST_CASE("commit: every invalid option is refused by its name", "[pipeline][obj
       {"gaussian_sigma", [](PipelineOptions& o) { o.gaussian_sigma = 40.0f; }},
       {"variance_pool_radius", [](PipelineOptions& o) { o.variance_pool_radius = -1; }},
       {"denoiser", [](PipelineOptions& o) { o.denoiser = "magic"; }},
-      {"weights", [](PipelineOptions& o) { o.weights = {1, 2, 3}; }},  // closed-form mixer
+      {"weights",
+       [](PipelineOptions& o) {
+         o.weights = {1, 2, 3};
+       }},  // closed-form mixer
       {"weights",
        [](PipelineOptions& o) {
          o.mixer = MixerKind::network;
@@ -334,24 +337,24 @@ TEST_CASE("a job's pipeline object parses to the options it names, old spellings
     }
     return std::string();
   };
-  CHECK(key_of({{"tile", 4}}) == "tile");             // below the front ends' bound
-  CHECK(key_of({{"tile", "64"}}) == "tile");          // wrong type
-  CHECK(key_of({{"t_test", 1}}) == "t_test");         // wrong type
-  CHECK(key_of({{"mixer", "neural"}}) == "mixer");    // not a value
+  CHECK(key_of({{"tile", 4}}) == "tile");           // below the front ends' bound
+  CHECK(key_of({{"tile", "64"}}) == "tile");        // wrong type
+  CHECK(key_of({{"t_test", 1}}) == "t_test");       // wrong type
+  CHECK(key_of({{"mixer", "neural"}}) == "mixer");  // not a value
   CHECK(key_of({{"denoiser", "magic"}}) == "denoiser");
   CHECK(key_of({{"weights", "/etc/passwd"}}) == "weights");  // CLI only
-  CHECK(key_of({{"mixer_raduis", 3}}) == "mixer_raduis");   // unknown key
+  CHECK(key_of({{"mixer_raduis", 3}}) == "mixer_raduis");    // unknown key
   CHECK(key_of({{"mixer", "stein"}, {"closed_form_rule", "inverse-error"}}) == "closed_form_rule");
   CHECK(key_of({{"mixer", "stein"}, {"closed_form_rule", "stein"}}).empty());
   try {
-    protocol::parse_job_spec({{"name", "j"},
-                              {"output", {{"dir", "/tmp/x"}}},
-                              {"pipeline", {{"mixer", "neural"}}}});
+    protocol::parse_job_spec(
+        {{"name", "j"}, {"output", {{"dir", "/tmp/x"}}}, {"pipeline", {{"mixer", "neural"}}}});
     FAIL("accepted mixer neural");
   } catch (const protocol::ApiError& e) {
     CHECK(e.status() == 400);
-    CHECK_THAT(std::string(e.what()), Catch::StartsWith("pipeline.mixer: ") && Catch::Contains("network") &&
-                             Catch::Contains("inverse-error"));
+    CHECK_THAT(std::string(e.what()), Catch::StartsWith("pipeline.mixer: ") &&
+                                          Catch::Contains("network") &&
+                                          Catch::Contains("inverse-error"));
   }
   // The job echoes what was given, denoiser and mixer defaulting to "auto", and round-trips.
   const auto job = protocol::parse_job_spec(
