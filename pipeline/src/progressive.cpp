@@ -144,7 +144,7 @@ void run_sure(const Denoiser& denoiser, const DenoiseInputs& din, const Rect& re
 }
 
 // The registry. A new denoiser is one more entry: its name, a line of help, how to build it from
-// the options, and whether it reads the frame's features.
+// the options, and what it reads of the frame (features, half buffers).
 const DenoiserEntry kDenoisers[] = {
     {"nlmeans", "feature-guided non-local means with its exact Jacobian",
      [](const PipelineOptions& o) -> std::unique_ptr<const Denoiser> {
@@ -152,12 +152,14 @@ const DenoiserEntry kDenoisers[] = {
        p.use_features = p.use_features && o.features;
        return std::make_unique<NlMeansDenoiser>(p);
      },
-     [](const PipelineOptions& o) { return o.features && o.nlmeans.use_features; }},
+     [](const PipelineOptions& o) {
+       return EstimateOptions{.halves = false, .features = o.features && o.nlmeans.use_features};
+     }},
     {"gaussian", "a Gaussian blur: fast, biased at edges",
      [](const PipelineOptions& o) -> std::unique_ptr<const Denoiser> {
        return std::make_unique<GaussianDenoiser>(o.gaussian_sigma);
      },
-     [](const PipelineOptions&) { return false; }},
+     [](const PipelineOptions&) { return EstimateOptions{.halves = false, .features = false}; }},
 };
 
 constexpr std::array<std::string_view, 7> kLayerNames = {
@@ -325,10 +327,11 @@ void Pipeline::commit() {
   std::shared_ptr<const Denoiser> denoiser;
   std::unique_ptr<const Mixer> mixer;
   std::string weights_source = "none";
-  bool analytic = false, reads_features = false;
+  bool analytic = false;
+  EstimateOptions reads{.halves = false, .features = false};
   if (custom_denoiser_) {
     denoiser = custom_denoiser_;
-    reads_features = o.features;
+    reads.features = o.features;
   } else if (o.denoiser != kNoDenoiser) {
     const DenoiserEntry* entry = find_denoiser(o.denoiser);
     if (!entry) {
@@ -338,7 +341,7 @@ void Pipeline::commit() {
                                          std::string(kNoDenoiser) + ")");
     }
     denoiser = entry->make(o);
-    reads_features = entry->reads_features(o);
+    reads = entry->reads(o);
   }
   if (denoiser) {
     analytic = o.divergence == DivergenceMethod::analytic ||
@@ -368,7 +371,7 @@ void Pipeline::commit() {
   mixer_ = std::move(mixer);
   mixer_weights_ = std::move(weights_source);
   analytic_ = analytic;
-  reads_features_ = reads_features;
+  reads_ = reads;
   // The halo: what each tiled stage reads around the region the next one needs. A whole-frame
   // denoiser has already run over the full image, so it adds nothing.
   halo_ = 0;
@@ -439,10 +442,10 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
   res.alpha = Image(W, H, 3);
   res.sure = Image(W, H, 3);
 
-  const DenoiseInputs din = denoise_inputs(frame, x, var, reads_features_);
-  res.inputs.albedo = reads_features_ && din.albedo.valid();
-  res.inputs.normal = reads_features_ && din.normal.valid();
-  res.inputs.depth = reads_features_ && din.depth.valid();
+  const DenoiseInputs din = denoise_inputs(frame, x, var, reads_.features);
+  res.inputs.albedo = reads_.features && din.albedo.valid();
+  res.inputs.normal = reads_.features && din.normal.valid();
+  res.inputs.depth = reads_.features && din.depth.valid();
 
   const Rect image{0, 0, W, H};
   // A whole-frame denoiser runs once over the full image; its y, divergence and SURE are then

@@ -110,8 +110,7 @@ int run_denoise(const DenoiseOptions& o) {
     return kBadInput;
   }
   const auto t1 = Clock::now();
-  const FrameEstimate est = a.frame.estimate(
-      {.halves = false, .features = o.input.features && pipeline->options().features});
+  const FrameEstimate est = a.frame.estimate(pipeline->estimate_options());
   const PipelineResult res = pipeline->execute(est);
   const auto t2 = Clock::now();
 

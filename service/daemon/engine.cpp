@@ -458,7 +458,7 @@ void Engine::run_frame(const std::shared_ptr<Job>& job, long frame_no) {
   }
   try {
     auto t0 = Clock::now();
-    const FrameEstimate est = acc->estimate({.halves = false, .features = true});
+    const FrameEstimate est = acc->estimate(FrameProcessor::estimate_options(spec.pipeline));
     metrics_.observe("proden_stage_duration_seconds", "estimate", seconds_since(t0));
     const ProcessedFrame out = FrameProcessor::process(*acc, est, spec.pipeline);
     for (const auto& [stage, s] : out.stage_seconds) {

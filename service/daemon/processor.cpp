@@ -41,6 +41,10 @@ bool FrameProcessor::supports(const protocol::PipelineSpec& spec, std::string& w
   return true;
 }
 
+EstimateOptions FrameProcessor::estimate_options(const protocol::PipelineSpec& spec) {
+  return pipeline_for(spec.options).estimate_options();
+}
+
 ProcessedFrame FrameProcessor::process(const FrameAccumulator& frame, const FrameEstimate& estimate,
                                        const protocol::PipelineSpec& spec) {
   ProcessedFrame out;

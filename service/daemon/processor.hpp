@@ -29,6 +29,8 @@ class FrameProcessor {
   // Whether the job's pipeline builds here: its options commit (why = the error, naming
   // pipeline.<key>, if not).
   static bool supports(const protocol::PipelineSpec& spec, std::string& why);
+  // What the job's pipeline needs of the accumulated frame (FrameAccumulator::estimate).
+  static EstimateOptions estimate_options(const protocol::PipelineSpec& spec);
   static ProcessedFrame process(const FrameAccumulator& frame, const FrameEstimate& estimate,
                                 const protocol::PipelineSpec& spec);
 

@@ -366,3 +366,32 @@ TEST_CASE("a job's pipeline object parses to the options it names, old spellings
   CHECK(protocol::settings_json(protocol::job_from_json(persisted).pipeline.options) ==
         protocol::settings_json(job.pipeline.options));
 }
+
+TEST_CASE("the pipeline asks the accumulator only for what its denoiser reads",
+          "[pipeline][object]") {
+  const auto reads = [](const std::string& denoiser, bool features) {
+    PipelineOptions o;
+    o.denoiser = denoiser;
+    o.features = features;
+    Pipeline p(o);
+    p.commit();
+    return p.estimate_options();
+  };
+  CHECK(reads("nlmeans", true).features);
+  CHECK_FALSE(reads("nlmeans", false).features);
+  CHECK_FALSE(reads("gaussian", true).features);
+  CHECK_FALSE(reads("none", true).features);
+  for (const auto& d : denoisers()) CHECK_FALSE(reads(std::string(d.name), true).halves);
+  // A frame estimated that way runs, and its inputs say what was used.
+  FrameAccumulator f;
+  for (std::uint64_t k = 0; k < 3; ++k) {
+    f.add(test::make_pass(20, 20, 4, 7 + k, Layout{true, true, true, false}), std::to_string(k));
+  }
+  for (const auto& [name, want] : {std::pair{"nlmeans", "HDR+ALB+NRM+DEP"}, {"gaussian", "HDR"}}) {
+    PipelineOptions o = small_options();
+    o.denoiser = name;
+    Pipeline p(o);
+    p.commit();
+    CHECK(p.execute(f.estimate(p.estimate_options())).inputs.to_string() == want);
+  }
+}

@@ -104,7 +104,8 @@ struct DenoiserEntry {
   std::string_view name;
   std::string_view summary;  // one line, for help texts
   std::unique_ptr<const Denoiser> (*make)(const PipelineOptions&);
-  bool (*reads_features)(const PipelineOptions&);  // whether it uses albedo/normal/depth
+  // What it reads of the frame: albedo/normal/depth (`features`), the half buffers (`halves`).
+  EstimateOptions (*reads)(const PipelineOptions&);
 };
 std::span<const DenoiserEntry> denoisers();
 const DenoiserEntry* find_denoiser(std::string_view name);
@@ -201,6 +202,9 @@ class Pipeline {
   const Denoiser* denoiser() const { return denoiser_.get(); }
   const Mixer* mixer() const { return mixer_.get(); }
   int halo() const { return halo_; }
+  // What execute() needs of the accumulated frame (FrameAccumulator::estimate's options): the
+  // features only if the denoiser reads them, the half buffers only if it does.
+  EstimateOptions estimate_options() const { return reads_; }
   // Bytes of scratch the pipeline keeps between runs (frame-sized copies and per-thread tiles).
   std::size_t scratch_bytes() const;
 
@@ -213,7 +217,7 @@ class Pipeline {
   std::unique_ptr<const Mixer> mixer_;
   std::string mixer_weights_ = "none";
   bool analytic_ = false;
-  bool reads_features_ = false;
+  EstimateOptions reads_{.halves = false, .features = false};
   int halo_ = 0;
   std::unique_ptr<Scratch> scratch_;
 };
