@@ -3,6 +3,7 @@
 #include <tbb/combinable.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <array>
@@ -472,7 +473,10 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
   };
   tbb::combinable<Times> times;
 
-  tbb::parallel_for(0, tiles_x * tiles_y, [&](int t) {
+  // One tile's stages. They use this thread's scratch, so a thread must not start another tile
+  // while one is in flight: isolate() keeps any parallel work a stage waits on from lending the
+  // thread to this loop's other tiles.
+  const auto run_tile = [&](int t) {
     Times& tm = times.local();
     Scratch::Tile& b = s.tiles.local();
     const Rect inner = Rect{(t % tiles_x) * T, (t / tiles_x) * T, 0, 0};
@@ -542,7 +546,9 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
     tm.mixer += t3 - t2;
     tm.ttest += t4 - t3;
     tm.compose += t5 - t4;
-  });
+  };
+  tbb::parallel_for(0, tiles_x * tiles_y,
+                    [&](int t) { tbb::this_task_arena::isolate([&] { run_tile(t); }); });
 
   times.combine_each([&](const Times& tm) {
     res.timings.denoise += tm.denoise;
