@@ -56,6 +56,10 @@ json pipeline_json(const PipelineSpec& p) {
 
 }  // namespace
 
+PipelineSpec PipelineSpec::from_json(const json& given) {
+  return {given, parse_pipeline_options(given)};
+}
+
 json ApiError::to_json() const {
   return {{"error", {{"code", code_}, {"message", what()}}}};
 }
@@ -93,11 +97,10 @@ JobSpec parse_job_spec(const json& body) {
     const json& p = body["pipeline"];
     if (!p.is_object()) bad("pipeline", "must be an object");
     try {
-      j.pipeline.options = parse_pipeline_options(p);
+      j.pipeline = PipelineSpec::from_json(p);
     } catch (const PipelineError& e) {
       bad("pipeline." + e.key(), e.message());
     }
-    j.pipeline.given = p;
   }
   if (!body.contains("output") || !body["output"].is_object()) bad("output", "required object");
   const json& o = body["output"];

@@ -44,6 +44,10 @@ struct OutputSpec {
 struct PipelineSpec {
   nlohmann::json given = nlohmann::json::object();
   PipelineOptions options;
+
+  // From a `pipeline` object; throws PipelineError naming the key (parse_job_spec reports it as
+  // 400 invalid_field "pipeline.<key>: ...").
+  static PipelineSpec from_json(const nlohmann::json& given);
 };
 
 // A job as created by POST /api/v1/jobs and reported by GET /api/v1/jobs[/{id}].
