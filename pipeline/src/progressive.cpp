@@ -285,8 +285,24 @@ Pipeline::Pipeline(PipelineOptions options) : Pipeline() {
   options_ = std::move(options);
 }
 Pipeline::~Pipeline() = default;
-Pipeline::Pipeline(Pipeline&&) noexcept = default;
-Pipeline& Pipeline::operator=(Pipeline&&) noexcept = default;
+Pipeline::Pipeline(Pipeline&& other) noexcept {
+  *this = std::move(other);
+}
+
+Pipeline& Pipeline::operator=(Pipeline&& other) noexcept {
+  options_ = std::move(other.options_);
+  custom_denoiser_ = std::move(other.custom_denoiser_);
+  committed_ = other.committed_;
+  denoiser_ = std::move(other.denoiser_);
+  mixer_ = std::move(other.mixer_);
+  mixer_weights_ = std::move(other.mixer_weights_);
+  analytic_ = other.analytic_;
+  reads_ = other.reads_;
+  halo_ = other.halo_;
+  scratch_ = std::move(other.scratch_);
+  other.committed_ = false;  // its stages are gone: it must be set up and committed again
+  return *this;
+}
 
 void Pipeline::set_options(PipelineOptions options) {
   options_ = std::move(options);
@@ -341,7 +357,11 @@ void Pipeline::commit() {
       fail(PipelineOption::denoiser, "unknown denoiser '" + o.denoiser + "' (one of " + known +
                                          std::string(kNoDenoiser) + ")");
     }
-    denoiser = entry->make(o);
+    try {
+      denoiser = entry->make(o);
+    } catch (const std::invalid_argument& e) {  // a parameter the denoiser itself refuses
+      fail(PipelineOption::denoiser, o.denoiser + ": " + e.what());
+    }
     reads = entry->reads(o);
   }
   if (denoiser) {
@@ -353,11 +373,11 @@ void Pipeline::commit() {
     }
     if (o.mixer == MixerKind::network) {
       std::shared_ptr<const network::PdNet> net;
+      const std::string source = o.weights_source.empty() ? "weights" : o.weights_source;
       try {
-        net = o.weights.empty()
-                  ? network::builtin_network()
-                  : std::make_shared<const network::PdNet>(
-                        network::parse_weights(o.weights, o.weights_source), o.weights_source);
+        net = o.weights.empty() ? network::builtin_network()
+                                : std::make_shared<const network::PdNet>(
+                                      network::parse_weights(o.weights, source), source);
       } catch (const network::WeightsError& e) {
         fail(PipelineOption::weights, e.what());
       }
@@ -394,6 +414,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
   }
   const PipelineOptions& o = options_;
   const int W = frame.mean.width(), H = frame.mean.height();
+  if (!scratch_) scratch_ = std::make_unique<Scratch>();  // a moved-from pipeline, re-committed
   Scratch& s = *scratch_;
 
   PipelineResult res;

@@ -110,6 +110,7 @@ TEST_CASE("commit: every invalid option is refused by its name", "[pipeline][obj
       {"gaussian_sigma", [](PipelineOptions& o) { o.gaussian_sigma = 40.0f; }},
       {"variance_pool_radius", [](PipelineOptions& o) { o.variance_pool_radius = -1; }},
       {"denoiser", [](PipelineOptions& o) { o.denoiser = "magic"; }},
+      {"denoiser", [](PipelineOptions& o) { o.nlmeans.k = 0.0f; }},  // refused by NL-means itself
       {"weights",
        [](PipelineOptions& o) {
          o.weights = {1, 2, 3};
@@ -178,6 +179,16 @@ TEST_CASE("execute needs a commit after every change of options", "[pipeline][ob
   no_variance.variance = Image();
   p.commit();
   CHECK_THROWS_AS(p.execute(no_variance), std::invalid_argument);
+  // A moved pipeline keeps its build; the moved-from one must be committed again.
+  const PipelineResult before = p.execute(f);
+  Pipeline q = std::move(p);
+  CHECK(q.committed());
+  CHECK(same(q.execute(f).result, before.result));
+  CHECK_FALSE(p.committed());  // NOLINT(bugprone-use-after-move): the state after a move is set
+  CHECK_THROWS_AS(p.execute(f), std::logic_error);
+  p.set_options(small_options());
+  p.commit();
+  CHECK(same(p.execute(f).result, before.result));
 }
 
 TEST_CASE("execute twice reuses the built stages and the scratch", "[pipeline][object]") {
