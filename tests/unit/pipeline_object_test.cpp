@@ -199,6 +199,7 @@ TEST_CASE("execute twice reuses the built stages and the scratch", "[pipeline][o
   for (const MixerKind mixer : {MixerKind::closed_form, MixerKind::network}) {
     PipelineOptions o = small_options();
     o.mixer = mixer;
+    o.tile = 24;  // several tiles, with little halo overhead (the network is slow under ASan)
     Pipeline p(o);
     p.commit();
     const Denoiser* denoiser = p.denoiser();
@@ -243,7 +244,7 @@ TEST_CASE("a whole-frame denoiser runs once over the full image and tiles equal 
     Pipeline tiled_ref(o);
     tiled_ref.commit();
     const PipelineResult ref = tiled_ref.execute(f);  // the registry's (tiled) gaussian, one tile
-    for (int tile : {1, 7, 16, 4096}) {
+    for (int tile : {3, 7, 4096}) {  // smaller than the halo, not dividing 45x31, one tile
       o.tile = tile;
       Pipeline p(o);
       auto whole = std::make_shared<WholeFrame>(std::make_unique<GaussianDenoiser>(2.0f));
