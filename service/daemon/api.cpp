@@ -66,7 +66,8 @@ json colour_maps_json() {
     maps[std::string(name(cm))] = colour_stops(cm, 32);
   }
   json layers = json::object();
-  for (const char* l : {"result", "render", "denoised", "alpha", "variance", "sure", "error"}) {
+  for (const char* l :
+       {"result", "render", "denoised", "alpha", "variance", "mixvariance", "sure", "error"}) {
     const LayerView v = layer_view(l);
     if (v.colour) {
       layers[l] = {{"kind", "colour"}};

@@ -26,7 +26,7 @@ float srgb(float linear) {
 
 LayerView layer_view(std::string_view layer) {
   if (layer == "alpha") return {false, ColourMap::viridis, Scale::linear};
-  if (layer == "variance" || layer == "sure" || layer == "error") {
+  if (layer == "variance" || layer == "mixvariance" || layer == "sure" || layer == "error") {
     return {false, ColourMap::magma, Scale::log};
   }
   return {true, ColourMap::viridis, Scale::linear};

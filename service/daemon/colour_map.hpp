@@ -29,7 +29,7 @@ struct ScalarRange {
 
 // How a layer is shown: tone-mapped colour (result, render, denoised), or one value per pixel
 // (the mean over R,G,B) through a colour map: alpha linear over [0,1] with viridis; the errors
-// (variance, sure, error) on a log scale with magma.
+// (variance, mixvariance, sure, error) on a log scale with magma.
 struct LayerView {
   bool colour = true;
   ColourMap map = ColourMap::viridis;

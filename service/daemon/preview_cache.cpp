@@ -59,8 +59,7 @@ void PreviewCache::check_request(const std::string& format, const std::string& l
     throw ApiError(400, "invalid_parameter", "format must be exr or png");
   }
   if (!layer.empty() && !known_layer(layer) && layer != "error") {
-    throw ApiError(400, "invalid_parameter",
-                   "layer must be one of result, render, variance, denoised, alpha, sure, error");
+    throw ApiError(400, "invalid_parameter", "layer must be one of " + known_layers() + ", error");
   }
 }
 
@@ -90,7 +89,7 @@ PreviewCache::Request PreviewCache::Request::from_query(
     const LayerView view = layer_view(r.layer);
     if (!png || view.colour || comma == std::string::npos) {
       throw ApiError(400, "invalid_parameter",
-                     "range: lo,hi for format=png of alpha, variance, sure or error");
+                     "range: lo,hi for format=png of alpha, variance, mixvariance, sure or error");
     }
     const double lo = parse_number(it->second.substr(0, comma), "range");
     const double hi = parse_number(it->second.substr(comma + 1), "range");

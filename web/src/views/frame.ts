@@ -16,6 +16,7 @@ export const LAYERS: { id: string; label: string }[] = [
   { id: 'error', label: 'error of the result (estimated)' },
   { id: 'variance', label: 'error of the render (Var[x])' },
   { id: 'sure', label: 'error of the denoised (SURE)' },
+  { id: 'mixvariance', label: 'Var[x] as the mixer reads it' },
 ];
 
 interface Shown {
