@@ -108,6 +108,13 @@ fs::path write_full(const test::TempDir& t) {
   return p;
 }
 
+PreviewCache::Request png(const std::string& layer) {
+  PreviewCache::Request r;
+  r.format = "png";
+  r.layer = layer;
+  return r;
+}
+
 std::string header(const PreviewCache::File& f, const std::string& name) {
   for (const auto& [k, v] : f.headers) {
     if (k == name) return v;
@@ -122,9 +129,7 @@ TEST_CASE("PreviewCache: alpha and errors are colour-mapped with their range",
   test::TempDir t;
   const fs::path exr = write_full(t);
   PreviewCache pc;
-  PreviewCache::Request r;
-  r.format = "png";
-  r.layer = "alpha";
+  PreviewCache::Request r = png("alpha");
   const auto alpha = pc.get(t.path() / "cache", exr, 1, 1, r);
   CHECK(header(alpha, "X-Proden-Colormap") == "viridis");
   CHECK(header(alpha, "X-Proden-Scale") == "linear");
@@ -149,10 +154,7 @@ TEST_CASE("PreviewCache: alpha and errors are colour-mapped with their range",
   r.range = std::pair{1e-6, 1.0};
   CHECK(header(pc.get(t.path() / "cache", exr, 1, 1, r), "X-Proden-Range") == "1e-06 1");
 
-  PreviewCache::Request e;
-  e.format = "png";
-  e.layer = "error";
-  const auto err = pc.get(t.path() / "cache", exr, 1, 1, e);
+  const auto err = pc.get(t.path() / "cache", exr, 1, 1, png("error"));
   CHECK(header(err, "X-Proden-Scale") == "log");
 }
 
@@ -160,9 +162,7 @@ TEST_CASE("PreviewCache: thumbnails and exposures are separate renditions", "[da
   test::TempDir t;
   const fs::path exr = write_full(t);
   PreviewCache pc;
-  PreviewCache::Request r;
-  r.format = "png";
-  r.layer = "render";
+  PreviewCache::Request r = png("render");
   const auto full = pc.get(t.path() / "cache", exr, 1, 1, r);
   r.size = 8;
   const auto thumb = pc.get(t.path() / "cache", exr, 1, 1, r);
