@@ -23,6 +23,7 @@ export interface ImageRendition {
 
 export interface ImageQuery {
   layer: string;
+  version?: number; // an older version the daemon keeps (the farm integration's image?version=K)
   size?: number;
   exposure?: number;
   range?: [number, number];
@@ -116,13 +117,14 @@ export class Api {
     if (q.size) p.set('size', String(q.size));
     if (q.exposure) p.set('exposure', String(q.exposure));
     if (q.range) p.set('range', `${q.range[0]},${q.range[1]}`);
+    if (q.version) p.set('version', String(q.version));
     return `/api/v1/jobs/${enc(job)}/frames/${frame}/image?${p}`;
   }
 
   async image(job: string, frame: number, q: ImageQuery): Promise<ImageRendition> {
     const res = await this.request('GET', this.imageUrl(job, frame, q));
     const etag = res.headers.get('ETag') ?? '';
-    const v = /"v(\d+)/.exec(etag);
+    const v = /^(\d+)$/.exec(res.headers.get('X-Proden-Version') ?? '') ?? /"v(\d+)/.exec(etag);
     const range = (res.headers.get('X-Proden-Range') ?? '').split(' ').map(Number);
     return {
       blob: await res.blob(),

@@ -106,10 +106,12 @@ const stream = new EventStream({
       store.applyErrorEvent(ee);
       view?.onError?.(ee);
     } else {
-      // Other events that name a frame and its `converged` state (the farm integration's).
+      // The farm integration's `converged` / `unconverged` events, and any other event that names
+      // a frame and its `converged` state.
       const c = data as { job?: string; frame?: number; converged?: boolean };
-      if (typeof c.job === 'string' && typeof c.frame === 'number' && typeof c.converged === 'boolean') {
-        if (store.applyConverged(c.job, c.frame, c.converged)) {
+      const state = e.event === 'converged' ? true : e.event === 'unconverged' ? false : c.converged;
+      if (typeof c.job === 'string' && typeof c.frame === 'number' && typeof state === 'boolean') {
+        if (store.applyConverged(c.job, c.frame, state)) {
           const f = store.jobs.get(c.job)?.frames.get(c.frame);
           if (f) view?.onFrame?.({ ...f, name: '', new_passes: 0, updated: f.updated ?? '' });
         }

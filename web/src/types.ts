@@ -16,8 +16,15 @@ export interface Job {
 export interface EstimatedError {
   mse: number;
   source?: string;
+  // With the farm integration's calibrated estimate: 95 % intervals (null = unbounded).
+  mse_low?: number | null;
+  mse_high?: number | null;
   relmse?: number;
+  relmse_low?: number | null;
+  relmse_high?: number | null;
   equivalent_spp?: number;
+  equivalent_spp_low?: number | null;
+  equivalent_spp_high?: number | null;
   [key: string]: unknown;
 }
 
@@ -32,6 +39,7 @@ export interface FrameStatus {
   estimated_error?: EstimatedError;
   pending: boolean;
   converged?: boolean;
+  versions?: number[]; // the versions the daemon keeps images of (farm integration), newest first
 }
 
 /** One published version of a frame (GET .../history, and the `frame` event). */

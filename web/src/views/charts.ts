@@ -3,8 +3,11 @@
 import uPlot from 'uplot';
 import 'uplot/dist/uPlot.min.css';
 import { sci } from '../format';
+import { frameSeries, type FrameAxis } from '../series';
 import type { Spread } from '../store';
-import { errorOf, type Version } from '../types';
+import type { Version } from '../types';
+
+export type { FrameAxis };
 
 const RESULT = '#4cc9f0';
 const RENDER = '#f8961e';
@@ -50,42 +53,21 @@ abstract class Chart {
   }
 }
 
-export type FrameAxis = 'spp' | 'time';
-
-/** x values of a frame's versions: spp, or seconds since `origin` (ms). */
-export function frameSeries(
-  versions: Version[],
-  axis: FrameAxis,
-  origin: number,
-): [number[], (number | null)[], (number | null)[]] {
-  const x: number[] = [];
-  const est: (number | null)[] = [];
-  const render: (number | null)[] = [];
-  for (const v of versions) {
-    const xv = axis === 'spp' ? v.spp : (Date.parse(v.updated) - origin) / 1000;
-    if (!(xv > 0)) continue;
-    const e = errorOf(v);
-    x.push(xv);
-    est.push(e > 0 ? e : null);
-    render.push(typeof v.render_mse === 'number' && v.render_mse > 0 ? v.render_mse : null);
-  }
-  // uPlot needs ascending x (wall time is; spp may repeat when nothing was added)
-  const order = x.map((_, i) => i).sort((a, b) => x[a] - x[b]);
-  return [order.map((i) => x[i]), order.map((i) => est[i]), order.map((i) => render[i])];
-}
-
 export class FrameChart extends Chart {
   points = 0; // versions drawn (tests read it through data-points)
+  private interval = false; // the estimate comes with an interval (drawn as a band)
 
   update(versions: Version[], axis: FrameAxis, origin: number): void {
     const data = frameSeries(versions, axis, origin);
+    const interval = data[3].some((v) => v !== null) || data[4].some((v) => v !== null);
     this.points = data[0].length;
     this.host.dataset.points = String(this.points);
     const xLabel = axis === 'spp' ? 'samples per pixel' : 'wall time since the job started (s)';
-    if (this.plot && this.plot.axes[0].label === xLabel) {
+    if (this.plot && this.plot.axes[0].label === xLabel && this.interval === interval) {
       this.plot.setData(data as uPlot.AlignedData);
       return;
     }
+    this.interval = interval;
     this.plot?.destroy();
     this.plot = new uPlot(
       {
@@ -112,7 +94,10 @@ export class FrameChart extends Chart {
             points: { show: true, size: 5 },
             value: (_u, v) => sci(v, 2),
           },
+          { label: '95 % low', stroke: RESULT, width: 0.5, show: interval, value: (_u, v) => sci(v, 2) },
+          { label: '95 % high', stroke: RESULT, width: 0.5, show: interval, value: (_u, v) => sci(v, 2) },
         ],
+        bands: interval ? [{ series: [4, 3], fill: BAND }] : [],
       },
       data as uPlot.AlignedData,
       this.host,

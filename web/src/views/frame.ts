@@ -60,6 +60,7 @@ export class FrameView implements View {
   private batch = new FrameBatcher<number>(() => void this.refresh());
   private resizeObs: ResizeObserver;
   private origin = 0;
+  private pinned: number | null = null; // an older version shown instead of the latest
 
   constructor(
     private ctx: Ctx,
@@ -124,7 +125,7 @@ export class FrameView implements View {
           el(
             'tr',
             {},
-            ...['version', 'published', 'passes', 'spp', 'est. error (result)', 'render (mean Var[x])', 'render / result'].map((t) =>
+            ...['', 'version', 'published', 'passes', 'spp', 'est. error (result)', 'render (mean Var[x])', 'render / result'].map((t) =>
               el('th', { scope: 'col', text: t }),
             ),
           ),
@@ -202,7 +203,7 @@ export class FrameView implements View {
     this.renderInfo();
     this.renderChart();
     this.renderHistory();
-    await this.loadImages();
+    if (this.pinned === null) await this.loadImages(); // a pinned older version stays on screen
   }
 
   onFrame(e: FrameEvent): void {
@@ -226,8 +227,23 @@ export class FrameView implements View {
       ['Est. error (MSE)', sci(errorOf(s)), 'error'],
       ['Render error (mean Var[x])', sci(last?.render_mse), 'render'],
     ];
-    if (typeof ee.relmse === 'number') rows.push(['Est. relMSE', sci(ee.relmse), 'relmse']);
-    if (typeof ee.equivalent_spp === 'number') rows.push(['Equivalent spp', fixed(ee.equivalent_spp, 0), 'eqspp']);
+    const interval = (lo: unknown, hi: unknown, f: (x: number) => string) =>
+      typeof lo === 'number' || typeof hi === 'number'
+        ? ` (${typeof lo === 'number' ? f(lo) : '–'} … ${typeof hi === 'number' ? f(hi) : '∞'})`
+        : '';
+    if (typeof ee.mse_low === 'number' || typeof ee.mse_high === 'number') {
+      rows[3][1] += interval(ee.mse_low, ee.mse_high, (x) => sci(x));
+    }
+    if (typeof ee.relmse === 'number') {
+      rows.push(['Est. relMSE', sci(ee.relmse) + interval(ee.relmse_low, ee.relmse_high, (x) => sci(x)), 'relmse']);
+    }
+    if (typeof ee.equivalent_spp === 'number') {
+      rows.push([
+        'Equivalent spp',
+        fixed(ee.equivalent_spp, 0) + interval(ee.equivalent_spp_low, ee.equivalent_spp_high, (x) => fixed(x, 0)),
+        'eqspp',
+      ]);
+    }
     if (s.converged !== undefined) rows.push(['Converged', s.converged ? '✓ yes' : '✗ not yet', 'converged']);
     rows.push(['State', s.pending ? '… processing' : 'idle', 'pending']);
     this.info.replaceChildren(...rows.flatMap(([k, v, f]) => [el('dt', { text: k }), el('dd', { 'data-field': f, text: v })]));
@@ -238,12 +254,28 @@ export class FrameView implements View {
     this.chart.update(this.versions, this.axis, this.origin);
   }
 
+  /** Shows version `v` in the viewer (null: follow the latest). */
+  private pin(v: number | null): void {
+    this.pinned = v === this.status?.version ? null : v;
+    this.renderHistory();
+    void this.loadImages();
+  }
+
   private renderHistory(): void {
+    const kept = new Set(this.status?.versions ?? []);
     const rows = [...this.versions].reverse().map((v) => {
       const e = errorOf(v);
+      const shown = (this.pinned ?? this.status?.version) === v.version;
+      let action: HTMLElement = el('span', { text: shown ? '◉ shown' : '' });
+      if (!shown && (kept.has(v.version) || v.version === this.status?.version)) {
+        const b = el('button', { type: 'button', text: 'view', 'aria-label': `View version ${v.version}` });
+        b.addEventListener('click', () => this.pin(v.version));
+        action = b;
+      }
       return el(
         'tr',
-        {},
+        shown ? { 'aria-current': 'true' } : {},
+        el('td', {}, action),
         el('td', { class: 'num', text: String(v.version) }),
         el('td', { text: new Date(v.updated).toLocaleTimeString() }),
         el('td', { class: 'num', text: String(v.passes) }),
@@ -261,8 +293,9 @@ export class FrameView implements View {
     const seq = ++this.loadSeq;
     if (!this.status || this.status.version === 0) return;
     const exposure = Number(this.exposure.value);
+    const version = this.pinned ?? undefined;
     const get = (layer: string, range?: [number, number]) =>
-      this.ctx.api.image(this.jobId, this.frameNo, { layer, exposure, range });
+      this.ctx.api.image(this.jobId, this.frameNo, { layer, exposure, range, version });
     try {
       const maps = await this.ctx.colourMaps();
       const ra = await get(this.selA.value);
@@ -275,8 +308,9 @@ export class FrameView implements View {
       this.b = { bitmap: bb, r: rb };
       this.stage.dataset.version = String(Math.min(ra.version ?? 0, rb.version ?? 0));
       this.stage.dataset.layers = `${this.selA.value},${this.selB.value}`;
-      this.labelA.textContent = `A: ${this.selA.value}`;
-      this.labelB.textContent = `B: ${this.selB.value}`;
+      const which = this.pinned ? ` (v${this.pinned})` : '';
+      this.labelA.textContent = `A: ${this.selA.value}${which}`;
+      this.labelB.textContent = `B: ${this.selB.value}${which}`;
       this.renderLegends(maps);
       this.draw();
     } catch (e) {

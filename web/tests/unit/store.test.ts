@@ -1,5 +1,6 @@
 import { describe, expect, it } from 'vitest';
 import { FrameBatcher } from '../../src/batch';
+import { frameSeries } from '../../src/series';
 import { Store, frameAfterEvent, mergeVersion, shotSpread, throughput } from '../../src/store';
 import type { FrameEvent, Job, Version } from '../../src/types';
 
@@ -130,5 +131,22 @@ describe('FrameBatcher', () => {
     b.mark(7);
     frames.shift()!();
     expect(flushes[1]).toEqual([7]);
+  });
+});
+
+describe('frameSeries', () => {
+  it('orders versions by x, drops non-positive values, carries the interval when given', () => {
+    const a = { ...v(2, 2, 8, 0.1, 20, 0.3), estimated_error: { mse: 0.1, mse_low: 0.08, mse_high: 0.13 } };
+    const b = v(1, 1, 4, 0.2, 10, 0.5);
+    const c = v(3, 3, 12, 0, 30); // a zero estimate cannot sit on a log axis
+    expect(frameSeries([a, b, c], 'spp', t0)).toEqual([
+      [4, 8, 12],
+      [0.2, 0.1, null],
+      [0.5, 0.3, null],
+      [null, 0.08, null],
+      [null, 0.13, null],
+    ]);
+    expect(frameSeries([b, a], 'time', t0)[0]).toEqual([10, 20]); // seconds since the origin
+    expect(frameSeries([b], 'time', t0 + 10_000)[0]).toEqual([]); // not after the origin
   });
 });
