@@ -58,8 +58,9 @@ export class FrameChart extends Chart {
   private interval = false; // the estimate comes with an interval (drawn as a band)
 
   update(versions: Version[], axis: FrameAxis, origin: number): void {
-    const data = frameSeries(versions, axis, origin);
-    const interval = data[3].some((v) => v !== null) || data[4].some((v) => v !== null);
+    const all = frameSeries(versions, axis, origin);
+    const interval = all[3].some((v) => v !== null) || all[4].some((v) => v !== null);
+    const data = interval ? all : all.slice(0, 3); // no interval: no band series at all
     this.points = data[0].length;
     this.host.dataset.points = String(this.points);
     const xLabel = axis === 'spp' ? 'samples per pixel' : 'wall time since the job started (s)';
@@ -94,8 +95,12 @@ export class FrameChart extends Chart {
             points: { show: true, size: 5 },
             value: (_u, v) => sci(v, 2),
           },
-          { label: '95 % low', stroke: RESULT, width: 0.5, show: interval, value: (_u, v) => sci(v, 2) },
-          { label: '95 % high', stroke: RESULT, width: 0.5, show: interval, value: (_u, v) => sci(v, 2) },
+          ...(interval
+            ? [
+                { label: '95 % low', stroke: RESULT, width: 0.5, value: (_u: uPlot, v: number) => sci(v, 2) },
+                { label: '95 % high', stroke: RESULT, width: 0.5, value: (_u: uPlot, v: number) => sci(v, 2) },
+              ]
+            : []),
         ],
         bands: interval ? [{ series: [4, 3], fill: BAND }] : [],
       },
