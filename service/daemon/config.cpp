@@ -89,13 +89,16 @@ const json* find(const json& j, const std::string& key) {
 void apply_json(Config& c, const json& j) {
   check_keys(
       j,
-      {"bind", "port", "state_dir", "allowed_roots", "token_file", "worker_threads", "io_threads",
-       "max_resident_frames", "pipeline_threads", "log_level", "limits", "watch"},
+      {"bind", "port", "state_dir", "allowed_roots", "token_file", "open_reads", "dashboard",
+       "worker_threads", "io_threads", "max_resident_frames", "pipeline_threads", "log_level",
+       "limits", "watch"},
       "");
   take(j, "bind", c.bind, "");
   take(j, "state_dir", c.state_dir, "");
   take(j, "allowed_roots", c.allowed_roots, "");
   take(j, "token_file", c.token_file, "");
+  take(j, "open_reads", c.open_reads, "");
+  take(j, "dashboard", c.dashboard, "");
   take(j, "log_level", c.log_level, "");
   if (j.contains("limits")) {
     check_keys(j["limits"],
@@ -147,6 +150,8 @@ json to_json(const Config& c) {
           {"state_dir", c.state_dir},
           {"allowed_roots", c.allowed_roots},
           {"token_file", c.token_file},
+          {"open_reads", c.open_reads},
+          {"dashboard", c.dashboard},
           {"worker_threads", c.worker_threads},
           {"io_threads", c.io_threads},
           {"max_resident_frames", c.max_resident_frames},

@@ -8,15 +8,12 @@
 #include <cstdio>
 
 #include "daemon/files.hpp"
+#include "daemon/frame_history.hpp"
 #include "daemon/processor.hpp"
 #include "proden/error.hpp"
 #include "proden/hash.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/protocol/json.hpp"
-
-#ifndef PRODEN_VERSION
-#define PRODEN_VERSION "dev"
-#endif
 
 namespace proden::daemon {
 
@@ -156,9 +153,9 @@ FrameRun::Outcome FrameRun::run(Input in) {
   bool committed = false;
   try {
     auto t0 = Clock::now();
-    const FrameEstimate est = acc->estimate({.halves = false, .features = true});
+    const FrameEstimate est = acc->estimate(FrameProcessor::estimate_options(spec.pipeline));
     metrics_.observe("proden_stage_duration_seconds", "estimate", seconds_since(t0));
-    const ProcessedFrame out = FrameProcessor::process(est, spec.pipeline);
+    const ProcessedFrame out = FrameProcessor::process(*acc, est, spec.pipeline);
     for (const auto& [stage, s] : out.stage_seconds) {
       metrics_.observe("proden_stage_duration_seconds", stage, s);
     }
@@ -211,31 +208,33 @@ FrameRun::Outcome FrameRun::run(Input in) {
     }
     t0 = Clock::now();
     fs::create_directories(spec.output.dir);
-    const std::vector<std::pair<std::string, std::string>> attrs = {
-        {"Software", std::string("proden ") + PRODEN_VERSION},
-        {"proden:passes", std::to_string(rec.passes)},
-        {"proden:spp", std::to_string(rec.spp)},
-        {"proden:inputs", rec.inputs},
-        {"proden:variance_source", rec.variance_source},
-        {"proden:low_confidence", rec.low_confidence ? "true" : "false"},
-    };
     store_.fault_point("publish", output_base(spec, frame_no));
     const auto outputs =
-        FrameProcessor::publish(out, output_base(spec, frame_no).string(), spec.output.png, attrs);
+        FrameProcessor::publish(out, output_base(spec, frame_no).string(), spec.output.png);
     store_.save_published(job_id, frame_no, rec.version);
     metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
     hooks_.published(rec.version, outputs);
     metrics_.inc("proden_frame_updates_total");
-    json data = {{"job", job_id},
+    // What the version is worth, for the accuracy-over-time chart (FrameHistory) and the event.
+    json entry = {
+        {"version", rec.version},
+        {"updated", rec.updated},
+        {"passes", rec.passes},
+        {"spp", rec.spp},
+        {"estimated_mse", rec.estimated_mse},
+        {"estimated_error", {{"mse", rec.estimated_mse}, {"source", rec.estimated_mse_source}}},
+        {"render_mse", out.render_mse}};
+    try {
+      FrameHistory::append(store_.history_path(job_id, frame_no), entry);
+    } catch (const std::exception& e) {  // a chart point lost; the version itself stands
+      spdlog::warn("job {} frame {}: history: {}", job_id, frame_no, e.what());
+    }
+    json data = entry;
+    data.update({{"job", job_id},
                  {"name", spec.name},
                  {"frame", frame_no},
-                 {"version", rec.version},
-                 {"passes", rec.passes},
-                 {"spp", rec.spp},
                  {"new_passes", accepted.size()},
-                 {"estimated_mse", rec.estimated_mse},
-                 {"updated", rec.updated},
-                 {"outputs", outputs}};
+                 {"outputs", outputs}});
     events_.publish("frame", data);
     spdlog::info("job {} frame {}: version {} ({} pass(es), {} spp)", job_id, frame_no, rec.version,
                  rec.passes, rec.spp);

@@ -2,7 +2,7 @@
 // one directory per job with job.json, quarantine.json, frames/<n>.state (the frame's state),
 // frames/<n>.prev (the state before it: the last good state should <n>.state be damaged),
 // frames/<n>.kept/ (the uploads accumulated by the latest state, kept until the next one so that
-// falling back to <n>.prev loses nothing), frames/<n>.pub (the version last published),
+// falling back to <n>.prev loses nothing), frames/<n>.pub (the version last published), frames/<n>.history (the versions published),
 // uploads/<n>/<pass>.exr and cache/. It saves atomically and durably and recovers what a previous
 // process left (start-up). It holds no in-memory job state; the engine orders calls on one job.
 #pragma once
@@ -49,6 +49,7 @@ class JobStore {
   std::filesystem::path prev_path(const std::string& id, long frame) const;
   std::filesystem::path kept_dir(const std::string& id, long frame) const;
   std::filesystem::path published_path(const std::string& id, long frame) const;
+  std::filesystem::path history_path(const std::string& id, long frame) const;  // FrameHistory
   std::filesystem::path upload_dir(const std::string& id, long frame) const;
   std::filesystem::path cache_dir(const std::string& id) const;
 

@@ -26,6 +26,7 @@ void Scheduler::start() {
   std::lock_guard lock(mu_);
   stopping_ = false;
   for (int i = 0; i < workers_count_; ++i) workers_.emplace_back([this] { worker(); });
+  if (metrics_) metrics_->set("proden_worker_threads", workers_count_);
 }
 
 void Scheduler::request_stop() {
@@ -202,6 +203,7 @@ void Scheduler::worker() {
     // No exception leaves a worker: it is logged, counted, and the frame runs again after a
     // back-off (the run function keeps its own state consistent).
     bool crashed = false;
+    const auto t0 = std::chrono::steady_clock::now();
     try {
       run_(job, frame);
     } catch (const std::exception& e) {
@@ -212,6 +214,10 @@ void Scheduler::worker() {
       spdlog::error("job {} frame {}: internal error (unknown exception)", job, frame);
     }
     if (crashed && metrics_) metrics_->inc("proden_errors_total", "internal");
+    if (metrics_) {
+      metrics_->inc("proden_worker_busy_seconds_total", {},
+                    std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
     {
       std::lock_guard lock(mu_);
       --running_;
