@@ -1,39 +1,57 @@
-// Engine: the daemon's jobs and frames. Owns the job store (state_dir/jobs/<id>/), takes stable
-// pass files from the Watcher and uploads, and runs frames on a bounded worker pool shared
-// fairly (round-robin) by all jobs: read passes -> accumulate -> persist (exactly once) ->
-// process -> publish a new version -> event. Passes arriving while a frame runs coalesce into its
-// next run. Thread-safe; HTTP handlers call it directly.
+// Engine: the daemon's front over its jobs and frames. It keeps the in-memory table of jobs and
+// frames (which passes each frame has, waits for or is reading), answers the API, takes stable
+// files from the Watcher and uploads, and hands frames to the Scheduler, which runs them as
+// FrameRuns; JobStore keeps the state on disk, Quarantine the refused files, PreviewCache the
+// image renditions. Thread-safe; HTTP handlers call it directly.
+//
+// Locks, in this order: a job's save lock (orders writes of job.json), the engine's lock, then
+// the Scheduler's, the EventHub's or Metrics' own. The engine never calls the Watcher with its
+// lock held (the Watcher calls back into the engine).
+//
+// Its own published frames (any job's <output.dir>/<name>_<frame>.exr|.png, also reached through
+// a symlink) are never taken as passes, so an output directory may lie inside a watch directory.
 #pragma once
 
 #include <atomic>
-#include <condition_variable>
 #include <cstdint>
-#include <deque>
 #include <filesystem>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <set>
 #include <string>
-#include <thread>
 #include <vector>
 
+#include <tbb/global_control.h>
 #include <nlohmann/json.hpp>
 
+#include "daemon/clock.hpp"
 #include "daemon/config.hpp"
 #include "daemon/events.hpp"
 #include "daemon/files.hpp"
+#include "daemon/frame_run.hpp"
 #include "daemon/frame_state.hpp"
+#include "daemon/job_store.hpp"
 #include "daemon/metrics.hpp"
+#include "daemon/preview_cache.hpp"
+#include "daemon/quarantine.hpp"
+#include "daemon/scheduler.hpp"
 #include "daemon/watcher.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/protocol/api.hpp"
 
 namespace proden::daemon {
 
+// Test seams of the Engine: faults injected into file operations, the clock of the retry back-off.
+struct EngineTestHooks {
+  FsHook fs;
+  const Clock* clock = nullptr;  // null: the steady clock
+};
+
 class Engine {
  public:
-  Engine(const Config& config, const Roots& roots, Metrics& metrics, EventHub& events);
+  Engine(const Config& config, const Roots& roots, Metrics& metrics, EventHub& events,
+         EngineTestHooks hooks = EngineTestHooks());
   ~Engine();
   Engine(const Engine&) = delete;
   Engine& operator=(const Engine&) = delete;
@@ -48,90 +66,105 @@ class Engine {
   protocol::JobSpec job(const std::string& id) const;
   void delete_job(const std::string& id);
   protocol::JobSpec set_paused(const std::string& id, bool paused);
-  // Checks an upload's target before its body is read (404/400/409).
+  // Checks an upload's target before its body is read (404/400).
   void check_upload(const std::string& id, const std::string& frame, const std::string& pass) const;
+  // Stores an upload (docs/api.md): {"status":"queued"} (202) when stored or already waiting with
+  // the same bytes, {"status":"ingested"} (200) when the frame holds the pass with the same
+  // bytes; 409 when (frame, pass) has other bytes.
   nlohmann::json upload(const std::string& id, const std::string& frame, const std::string& pass,
                         const std::string& body);
+  // The same for a body already written to `spooled` (a path from spool_path(), taken over).
+  nlohmann::json upload_spooled(const std::string& id, const std::string& frame,
+                                const std::string& pass, const std::filesystem::path& spooled);
+  // A unique temp path for an upload body in the job's state directory.
+  std::filesystem::path spool_path(const std::string& id, const std::string& frame,
+                                   const std::string& pass);
   std::vector<protocol::FrameStatus> frames(const std::string& id) const;
   protocol::FrameStatus frame(const std::string& id, long frame) const;
-  struct ImageFile {
-    std::filesystem::path path;
-    std::string content_type;
-  };
+  using ImageFile = PreviewCache::File;
   ImageFile image(const std::string& id, long frame, const std::string& format,
                   const std::string& layer);
+  ImageFile image(const std::string& id, long frame, const PreviewCache::Request& request);
+  // The frame's published versions (FrameHistory); 404 for an unknown job or frame.
+  nlohmann::json history(const std::string& id, long frame) const;
+  // Every frame's published versions: [{"frame", "versions"}], in frame order.
+  nlohmann::json job_history(const std::string& id) const;
+  // Every quarantined file of the job (frame, pass, path, kind, message, time).
+  nlohmann::json quarantined(const std::string& id) const;
   // Blocks until no frame is queued or running (tests, benchmarks); false on timeout.
   bool wait_idle(int timeout_ms);
 
  private:
-  struct Pending {
-    std::string pass;
-    std::filesystem::path path;
-    std::uint64_t size = 0;
-    std::int64_t mtime_ns = 0;
-    bool upload = false;
+  struct Retry {
+    PendingPass pass;
+    Clock::time_point due;
   };
   struct Frame {
     FrameRecord rec;
     bool has_state = false;
     std::uint64_t published_version = 0;
     std::vector<std::string> outputs;
-    std::map<std::string, Pending> pending;
-    std::set<std::string> ingested, inflight;
-    std::map<std::string, int> attempts;
-    bool queued = false, running = false;
+    std::map<std::string, PendingPass> pending;   // to read at the next run
+    std::map<std::string, Retry> retry;           // to read again once due (back-off)
+    std::map<std::string, PendingPass> inflight;  // being read by the running run
+    std::set<std::string> ingested;
+    std::map<std::string, int> attempts;    // failed reads per pass
+    int failures = 0;                       // consecutive failed runs (persist/publish)
     std::shared_ptr<FrameAccumulator> acc;  // resident state (LRU-bounded)
     std::uint64_t last_used = 0;
-  };
-  struct Quarantined {
-    std::string path, kind, message, time;
-    std::uint64_t size = 0;
-    std::int64_t mtime_ns = 0;
+    bool has(const std::string& pass) const {
+      return ingested.count(pass) || pending.count(pass) || retry.count(pass) ||
+             inflight.count(pass);
+    }
   };
   struct Job {
     protocol::JobSpec spec;
-    std::filesystem::path dir;  // state_dir/jobs/<id>
     std::map<long, Frame> frames;
-    std::deque<long> ready;
-    bool in_rotation = false;
+    Quarantine quarantine;
     bool deleted = false;
-    std::map<std::pair<long, std::string>, Quarantined> quarantine;
+    std::mutex save_mu;  // orders job.json writes (taken before the engine's lock)
   };
+  // What an upload of (frame, pass) with these bytes is, given what the frame has.
+  enum class UploadFit { fresh, queued, ingested, conflict };
+  UploadFit fit(const Frame& fr, const std::string& pass, std::uint64_t hash) const;
+  // Checks a spooled upload (content `hash`, `size` bytes) and claims, stores and queues it.
+  nlohmann::json store_upload(const std::string& id, const std::string& frame,
+                              const std::string& pass, const std::filesystem::path& spooled,
+                              std::uint64_t hash, std::uint64_t size);
 
   void load_state();
   void load_job(const std::filesystem::path& dir);
-  void worker();
-  void run_frame(const std::shared_ptr<Job>& job, long frame_no);
-  void enqueue(const std::shared_ptr<Job>& job, long frame_no, Frame& fr);  // mu_ held
-  void quarantine(const std::shared_ptr<Job>& job, long frame, const Pending& p,
+  void run_frame(const std::string& job_id, long frame_no);
+  void enqueue(const Job& job, long frame_no);  // mu_ held
+  void retry_later(Job& job, long frame_no, Frame& fr, const PendingPass& p,
+                   std::chrono::milliseconds delay);  // mu_ held
+  void on_failed(const std::shared_ptr<Job>& job, long frame, const PendingPass& p,
+                 const Failure& f);
+  void on_damaged(const std::string& job, long frame, const std::string& message);
+  bool own_output(const std::filesystem::path& path) const;  // mu_ held
+  void quarantine(const std::shared_ptr<Job>& job, long frame, const PendingPass& p,
                   const std::string& kind, const std::string& message);
-  void save_job(const Job& job);
   void save_quarantine(const std::shared_ptr<Job>& job);
-  void update_gauges();  // mu_ held
-  void evict();          // mu_ held
-  void error_event(const std::string& job, long frame, const std::string& pass,
-                   const std::string& path, const std::string& kind, const std::string& message,
-                   bool quarantined);
+  void evict();  // mu_ held
   bool wanted(const FoundFile& f);
   void offer(const FoundFile& f);
   std::shared_ptr<Job> find(const std::string& id) const;  // mu_ held; 404 if absent
   protocol::FrameStatus status(const Job& job, const Frame& fr) const;
-  std::filesystem::path output_base(const Job& job, long frame) const;
-  std::filesystem::path state_path(const Job& job, long frame) const;
 
   Config config_;
   const Roots& roots_;
   Metrics& metrics_;
   EventHub& events_;
+  const Clock& clock_;
+  JobStore store_;
+  RetryPolicy retry_;
+  PreviewCache previews_;
   std::unique_ptr<Watcher> watcher_;
+  std::unique_ptr<Scheduler> scheduler_;
+  std::unique_ptr<tbb::global_control> pipeline_threads_;  // config.pipeline_threads > 0
 
   mutable std::mutex mu_;
-  std::condition_variable cv_, idle_cv_;
   std::map<std::string, std::shared_ptr<Job>> jobs_;
-  std::deque<std::string> rotation_;  // jobs with ready frames, served round-robin
-  std::vector<std::thread> workers_;
-  bool stopping_ = false;
-  int running_ = 0;
   std::uint64_t use_clock_ = 0;
   std::atomic<bool> ready_{false};
 };

@@ -12,16 +12,12 @@ namespace proden::daemon {
 
 namespace fs = std::filesystem;
 
-namespace {
-
 void fsync_dir(const fs::path& dir) {
   const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY);
   if (fd < 0) return;
   ::fsync(fd);
   ::close(fd);
 }
-
-}  // namespace
 
 void write_file_atomic(const fs::path& path, std::span<const std::uint8_t> data) {
   const fs::path dir = path.parent_path();

@@ -14,6 +14,8 @@ namespace proden::daemon {
 // Writes `data` to `path` atomically; throws std::runtime_error naming the path.
 void write_file_atomic(const std::filesystem::path& path, std::span<const std::uint8_t> data);
 void write_file_atomic(const std::filesystem::path& path, const std::string& text);
+// Makes the directory's entries (a rename or creation in it) durable.
+void fsync_dir(const std::filesystem::path& dir);
 
 // Reads a whole file; nullopt when it cannot be opened or read to the end.
 std::optional<std::vector<std::uint8_t>> read_file(const std::filesystem::path& path,

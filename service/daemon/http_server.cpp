@@ -214,7 +214,11 @@ class HttpServer::Session : public std::enable_shared_from_this<Session>, public
 };
 
 HttpServer::HttpServer(const Config& config, Handler& handler, EventHub& events, Metrics& metrics)
-    : config_(config), handler_(handler), events_(events), metrics_(metrics), acceptor_(ioc_) {}
+    : config_(config),
+      handler_(handler),
+      events_(events),
+      metrics_(metrics),
+      acceptor_(net::make_strand(ioc_)) {}  // accept handlers and stop()'s close: one strand
 
 HttpServer::~HttpServer() {
   stop();
@@ -270,7 +274,7 @@ void HttpServer::run(int threads) {
 
 void HttpServer::stop() {
   if (stopped_.exchange(true)) return;
-  net::post(ioc_, [this] {
+  net::post(acceptor_.get_executor(), [this] {
     beast::error_code ec;
     acceptor_.close(ec);
   });

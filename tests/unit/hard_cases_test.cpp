@@ -11,7 +11,6 @@
 #include <random>
 
 #include "proden/accumulator.hpp"
-#include "proden/denoise/nfor.hpp"
 #include "proden/network/builtin.hpp"
 #include "proden/progressive.hpp"
 
@@ -83,17 +82,27 @@ void check_sane(const FrameEstimate& e, const PipelineResult& r, bool convex = t
 // (whose result is returned), checking all.
 PipelineResult run_checked(const FrameAccumulator& f, const PipelineOptions& o = small_options()) {
   const FrameEstimate e = f.estimate();
-  static const network::NetworkMixer net(network::builtin_network());
   {
     INFO("learned mixer");
-    check_sane(e, run_pipeline(e, o, nullptr, &net));
+    PipelineOptions net = o;
+    net.mixer = MixerKind::network;
+    Pipeline pipeline(net);
+    pipeline.commit();
+    check_sane(e, pipeline.execute(e));
   }
   {
-    INFO("NFOR");
-    static const NforDenoiser nfor;
-    check_sane(e, run_pipeline(e, o, &nfor), false);
+    INFO("NFOR");  // through the registry, as the CLI and the daemon choose it
+    PipelineOptions nfor = o;
+    nfor.denoiser = "nfor";
+    Pipeline pipeline(nfor);
+    pipeline.commit();
+    check_sane(e, pipeline.execute(e), false);
   }
-  const PipelineResult r = run_pipeline(e, o);
+  PipelineOptions closed = o;
+  closed.mixer = MixerKind::closed_form;
+  Pipeline pipeline(closed);
+  pipeline.commit();
+  const PipelineResult r = pipeline.execute(e);
   check_sane(e, r);
   return r;
 }

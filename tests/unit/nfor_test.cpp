@@ -9,8 +9,8 @@
 #include <random>
 
 #include "../../pipeline/src/denoise/nfor_internal.hpp"
-#include "proden/denoise/nfor.hpp"
 #include "proden/accumulator.hpp"
+#include "proden/denoise/nfor.hpp"
 #include "proden/progressive.hpp"
 #include "test_support.hpp"
 
@@ -144,7 +144,8 @@ Frame noisy_frame(int w, int h, float sigma, std::uint32_t seed = 11) {
         f.half_depth[i].at(x, y, 0) = right ? 2.0f : 5.0f + 0.01f * static_cast<float>(y);
       }
       for (int c = 0; c < 3; ++c) {
-        const float truth = f.half_albedo[0].at(x, y, c) * (0.6f + 0.4f * f.half_normal[0].at(x, y, 0));
+        const float truth =
+            f.half_albedo[0].at(x, y, c) * (0.6f + 0.4f * f.half_normal[0].at(x, y, 0));
         for (int i = 0; i < 2; ++i) {
           f.half[i].at(x, y, c) =
               truth + sigma * gauss(seed + static_cast<std::uint32_t>(i), x, y, c);
@@ -453,7 +454,8 @@ TEST_CASE("1e6 fireflies stay local and finite", "[nfor]") {
           lo = std::min<double>(lo, y.at(px, py, c));
           hi = std::max<double>(hi, y.at(px, py, c));
           if (px >= 32 + 45) {
-            far_err = std::max<double>(far_err, std::abs(y.at(px, py, c) - clean.colour.at(px, py, c)));
+            far_err =
+                std::max<double>(far_err, std::abs(y.at(px, py, c) - clean.colour.at(px, py, c)));
           }
         }
       }
@@ -503,15 +505,22 @@ TEST_CASE("NFOR in the tiled pipeline: every tile size gives the whole-frame res
   for (int k = 0; k < 4; ++k)
     acc.add(test::make_pass(53, 41, 4, 10 + static_cast<std::uint64_t>(k), feats),
             "p" + std::to_string(k));
-  const FrameEstimate e = acc.estimate();
-  const NforDenoiser nfor;
   PipelineOptions o;
+  o.denoiser = "nfor";
   o.tile = 1000;
-  const PipelineResult whole = run_pipeline(e, o, &nfor);
+  Pipeline pipeline(o);
+  pipeline.commit();
+  // The registry asks the accumulator for the halves NFOR reads.
+  CHECK(pipeline.estimate_options().halves);
+  CHECK(pipeline.estimate_options().features);
+  const FrameEstimate e = acc.estimate(pipeline.estimate_options());
+  const PipelineResult whole = pipeline.execute(e);
   CHECK(whole.denoiser == "nfor");
   CHECK(whole.inputs.albedo);
-  CHECK(whole.halo == pipeline_halo(nfor, ClosedFormMixer(o.mixer), o));
+  // NFOR runs whole-frame: the halo is the mixer's and the t-test's only.
+  CHECK(whole.halo == pipeline.mixer()->radius() + o.ttest.radius);
   // y from the whole-frame run itself.
+  const NforDenoiser nfor;
   Buffer y({0, 0, 53, 41}, 3);
   nfor.denoise(denoise_inputs(e, e.mean, e.variance, true), {0, 0, 53, 41}, y, nullptr);
   for (int c = 0; c < 3; ++c) {
@@ -522,13 +531,16 @@ TEST_CASE("NFOR in the tiled pipeline: every tile size gives the whole-frame res
   for (int tile : {7, 16, 32}) {
     INFO("tile " << tile);
     o.tile = tile;
-    const PipelineResult r = run_pipeline(e, o, &nfor);
+    pipeline.set_options(o);
+    pipeline.commit();
+    const PipelineResult r = pipeline.execute(e);
     CHECK(max_abs_diff(r.result, whole.result) == 0.0);
     CHECK(max_abs_diff(r.denoised, whole.denoised) == 0.0);
     CHECK(max_abs_diff(r.alpha, whole.alpha) == 0.0);
     CHECK(max_abs_diff(r.sure, whole.sure) == 0.0);
   }
 }
+
 TEST_CASE("asking for the error estimates leaves y bit-identical", "[nfor]") {
   const Frame f = noisy_frame(40, 33, 0.1f);
   for (const std::string& isa : nfor::isas_available()) {
@@ -551,7 +563,10 @@ TEST_CASE("the pipeline takes NFOR's hat diagonal for SURE's divergence", "[nfor
   const FrameEstimate e = acc.estimate();
   const NforDenoiser nfor;
   PipelineOptions o;
-  const PipelineResult r = run_pipeline(e, o, &nfor);
+  o.denoiser = "nfor";
+  Pipeline pipeline(o);
+  pipeline.commit();
+  const PipelineResult r = pipeline.execute(e);
   CHECK(r.divergence == "analytic");
   NforExtras ex;
   ex.want_hat = true;
@@ -571,7 +586,7 @@ TEST_CASE("the pipeline takes NFOR's hat diagonal for SURE's divergence", "[nfor
   // One pass: single-buffer mode, still with its hat diagonal.
   FrameAccumulator one;
   one.add(test::make_pass(40, 30, 4, 20, feats), "p0");
-  CHECK(run_pipeline(one.estimate(), o, &nfor).divergence == "analytic");
+  CHECK(pipeline.execute(one.estimate()).divergence == "analytic");
 }
 
 TEST_CASE("every kernel build's NL-means weights match a double-precision reference",
@@ -582,8 +597,8 @@ TEST_CASE("every kernel build's NL-means weights match a double-precision refere
   for (int y = 0; y < H; ++y) {
     for (int x = 0; x < W; ++x) {
       for (int c = 0; c < 3; ++c) {
-        guide.at(x, y, c) = 0.5f + 0.3f * std::sin(0.3f * static_cast<float>(x + c)) +
-                            0.05f * gauss(60, x, y, c);
+        guide.at(x, y, c) =
+            0.5f + 0.3f * std::sin(0.3f * static_cast<float>(x + c)) + 0.05f * gauss(60, x, y, c);
         var.at(x, y, c) = (x + y) % 5 == 0 ? 0.0f : 0.0025f * (1.0f + hash01(61, x, y, c));
       }
     }

@@ -20,9 +20,9 @@ namespace proden {
 
 struct NforParams {
   // §5.1 feature prefilter: NL-means of each feature half weighted on the other half.
-  int prefilter_radius = 5;   // r: (2r+1)^2 candidates
-  int prefilter_patch = 3;    // f: (2f+1)^2 patch
-  float prefilter_k = 0.5f;   // NL-means damping k
+  int prefilter_radius = 5;  // r: (2r+1)^2 candidates
+  int prefilter_patch = 3;   // f: (2f+1)^2 patch
+  float prefilter_k = 0.5f;  // NL-means damping k
   // §4, §5.2 collaborative first-order regression.
   int window_radius = 9;  // 19x19 regression window
   int patch_radius = 3;   // colour patch of the NL-means regression weights
@@ -79,7 +79,6 @@ class NforDenoiser final : public Denoiser {
   // how the weights and the first pass depend on x (docs/nfor.md compares it with the truth).
   bool has_derivative() const override { return true; }
   bool whole_frame() const override { return true; }
-  bool reads_features() const override { return params_.use_features; }
   // Runs the whole frame and copies `out` (any region) into y (and dydx).
   void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const override;
   // The whole frame: y (3 channels) and, as asked in `extras`, its error estimates.
