@@ -302,6 +302,47 @@ TEST_CASE("denoise --mixer network runs the learned mixer on real Cycles passes"
   }
 }
 
+TEST_CASE("denoise --denoiser nfor runs NFOR under both mixers and names it in the header",
+          "[cli][real]") {
+  Scratch s;
+  const std::string ref = sample("renders/cornell/reference.exr");
+  const std::string nlm = s.file("nlmeans.exr");
+  REQUIRE(proden("denoise -q --aov --out " + nlm + join(passes("cornell")), s).code == 0);
+  int w = 0, h = 0;
+  const auto y_nlm = read_exr(nlm, {"denoised.R", "denoised.G", "denoised.B"}, &w, &h);
+  for (const std::string mixer : {"closed-form", "network"}) {
+    INFO("mixer " << mixer);
+    const std::string out = s.file("nfor_" + mixer + ".exr");
+    const Run d = proden("denoise -q --aov --json --denoiser nfor --mixer " + mixer + " --out " +
+                             out + join(passes("cornell")),
+                         s);
+    INFO(d.err);
+    REQUIRE(d.code == 0);
+    const auto j = nlohmann::json::parse(d.out);
+    CHECK(j["pipeline"]["denoiser"] == "nfor");
+    CHECK(j["inputs_used"] == "HDR+ALB+NRM+DEP");
+    CHECK(j["estimated_error"]["source"] == "variance+sure");
+    const auto hdr = string_attributes(out);
+    CHECK(hdr.at("proden:denoiser") == "nfor");
+    CHECK(hdr.at("proden:divergence") == "analytic");  // NFOR's hat diagonal (docs/nfor.md)
+    CHECK(hdr.at("proden:mixer").rfind(mixer == "network" ? "network-w" : "closed-form-", 0) == 0);
+    check_against_independent("cornell", out);  // alpha in [0, 1], result = blend, finite SURE
+    // y is NFOR's, not NL-means'.
+    const auto y = read_exr(out, {"denoised.R", "denoised.G", "denoised.B"}, &w, &h);
+    CHECK(y != y_nlm);
+    const Run r = proden(
+        "eval --json --layer render --layer denoised --layer result --ref " + ref + " " + out, s);
+    REQUIRE(r.code == 0);
+    const auto m = nlohmann::json::parse(r.out)["results"];
+    REQUIRE(m.size() == 3);
+    const double render = m[0]["relmse"], denoised = m[1]["relmse"], result = m[2]["relmse"];
+    INFO("relMSE render " << render << " NFOR " << denoised << " result " << result);
+    CHECK(denoised < 0.5 * render);
+    CHECK(result < 0.5 * render);
+    CHECK(result <= 1.05 * std::min(render, denoised));
+  }
+}
+
 TEST_CASE("denoise --weights: a corrupt or missing file is refused by name, exit 2", "[cli]") {
   Scratch s;
   const std::string bad = s.file("bad.pdnw");

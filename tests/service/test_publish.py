@@ -158,6 +158,41 @@ class PublishTest(unittest.TestCase):
                                capture_output=True, timeout=60)
             self.assertGreater(json.loads(r.stdout)["results"][0]["rmse"], 0.0)
 
+    def test_job_denoiser_nfor_publishes_what_the_cli_writes_under_both_mixers(self):
+        """NFOR end to end through the daemon: the job's `pipeline.denoiser` "nfor" (the registry
+        entry that asks the accumulator for the half buffers) under the closed-form mixer and the
+        network; the published frame is bit-identical to `proden denoise --denoiser nfor` on the
+        same passes, and is not NL-means' frame."""
+        with tempfile.TemporaryDirectory() as tmp:
+            default = os.path.join(tmp, "default.exr")
+            self.cli([], default)
+            for mixer, prefix in (("closed-form", "closed-form-"), ("network", "network-w")):
+                with self.subTest(mixer=mixer):
+                    jid, status, exr = self.publish("pub_nfor_" + mixer,
+                                                    {"denoiser": "nfor", "mixer": mixer})
+                    hdr = strings(exr_header(exr))
+                    self.assertEqual(hdr["proden:denoiser"], "nfor")
+                    self.assertEqual(hdr["proden:inputs"], "HDR+ALB+NRM+DEP")
+                    self.assertEqual(hdr["proden:divergence"], "analytic")  # its hat diagonal
+                    self.assertTrue(hdr["proden:mixer"].startswith(prefix), hdr["proden:mixer"])
+                    self.assertEqual(status["estimated_error"]["source"], "variance+sure")
+                    published = os.path.join(tmp, "daemon_%s.exr" % mixer)
+                    with open(published, "wb") as f:
+                        f.write(exr)
+                    out = os.path.join(tmp, "cli_%s.exr" % mixer)
+                    summary = self.cli(["--denoiser", "nfor", "--mixer", mixer], out)
+                    self.assertEqual(summary["pipeline"]["denoiser"], "nfor")
+                    with open(out, "rb") as f:
+                        cli_hdr = strings(exr_header(f.read()))
+                    for k in HEADER_FIELDS:
+                        self.assertEqual(cli_hdr[k], hdr[k], k)
+                    self.assertEqual(summary["estimated_mse"], status["estimated_mse"])
+                    self.assert_same_result(published, out)
+                    r = subprocess.run([BINARY, "eval", "--json", "--ref", published, default],
+                                       capture_output=True, timeout=60)
+                    self.assertEqual(r.returncode, 0, r.stderr)
+                    self.assertGreater(json.loads(r.stdout)["results"][0]["rmse"], 0.0)
+
     def test_job_denoiser_none_publishes_the_render(self):
         jid, status, exr = self.publish("pub_none", {"denoiser": "none"})
         attrs = exr_header(exr)
