@@ -104,7 +104,8 @@ int main(int argc, char** argv) {
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                             static_cast<std::size_t>(threads));
   FrameAccumulator acc;
-  for (int k = 0; k < 8; ++k) acc.add(bench::synthetic_pass(w, h, k, 4.0), "pass_" + std::to_string(k));
+  for (int k = 0; k < 8; ++k)
+    acc.add(bench::synthetic_pass(w, h, k, 4.0), "pass_" + std::to_string(k));
   const FrameEstimate est = acc.estimate();
   const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
   const double px = static_cast<double>(w) * h;
@@ -164,11 +165,12 @@ int main(int argc, char** argv) {
 
   const double nl_us = rows[0].wall / px * 1e6;
   const double rss_after = peak_rss_bytes();
-  std::printf("peak RSS: %.0f MB with the frame's passes, accumulator and estimate; %.0f MB after "
-              "the denoisers (NFOR's planes: +%.0f MB)\n",
-              rss_before / 1e6, rss_after / 1e6, (rss_after - rss_before) / 1e6);
-  std::printf("%-44s %8s %8s %8s %8s %6s | %7s %7s %7s %7s %7s\n", "denoiser", "wall s",
-              "us/px", "/NLM", "CPU us", "cores", "load", "prefilt", "pass 1", "select", "pass 2");
+  std::printf(
+      "peak RSS: %.0f MB with the frame's passes, accumulator and estimate; %.0f MB after "
+      "the denoisers (NFOR's planes: +%.0f MB)\n",
+      rss_before / 1e6, rss_after / 1e6, (rss_after - rss_before) / 1e6);
+  std::printf("%-44s %8s %8s %8s %8s %6s | %7s %7s %7s %7s %7s\n", "denoiser", "wall s", "us/px",
+              "/NLM", "CPU us", "cores", "load", "prefilt", "pass 1", "select", "pass 2");
   for (const Row& r : rows) {
     const double us = r.wall / px * 1e6;
     std::printf("%-44s %8.3f %8.2f %8.2f %8.2f %6.2f", r.what.c_str(), r.wall, us, us / nl_us,
@@ -198,9 +200,8 @@ int main(int argc, char** argv) {
                    "\"stages\": {\"load\": %.6f, \"prefilter\": %.6f, "
                    "\"first_pass\": %.6f, \"selection\": %.6f, \"second_pass\": %.6f}}%s\n",
                    r.what.c_str(), r.wall, r.wall / px * 1e6, r.wall / rows[0].wall,
-                   r.cpu / px * 1e6,
-                   r.stages.load, r.stages.prefilter, r.stages.first_pass, r.stages.selection,
-                   r.stages.second_pass, i + 1 < rows.size() ? "," : "");
+                   r.cpu / px * 1e6, r.stages.load, r.stages.prefilter, r.stages.first_pass,
+                   r.stages.selection, r.stages.second_pass, i + 1 < rows.size() ? "," : "");
     }
     std::fprintf(f, "]}\n");
     std::fclose(f);

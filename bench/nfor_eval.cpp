@@ -192,8 +192,7 @@ int main(int argc, char** argv) {
           truth.at(px, py, c) = static_cast<float>(d * d - rv);
           const double dx = static_cast<double>(y.at(px, py, c)) - est.mean.at(px, py, c);
           const double v = est.variance.at(px, py, c);
-          hat_sure.at(px, py, c) =
-              static_cast<float>(dx * dx - v + 2.0 * ex.hat.at(px, py, c) * v);
+          hat_sure.at(px, py, c) = static_cast<float>(dx * dx - v + 2.0 * ex.hat.at(px, py, c) * v);
         }
       }
     }
@@ -206,7 +205,8 @@ int main(int argc, char** argv) {
                 {"nfor", metrics_json(y, ref.mean, ref_var)},
                 {"true_mse", mean_of(truth)},
                 {"seconds", ex.seconds.total}};
-    for (const auto& [name, img] : ex.stages) row["stages"][name] = metrics_json(img, ref.mean, ref_var);
+    for (const auto& [name, img] : ex.stages)
+      row["stages"][name] = metrics_json(img, ref.mean, ref_var);
     row["estimates"]["hat"] = compare(hat_sure, truth);
     if (!ex.cross_validation.empty()) row["estimates"]["cv"] = compare(ex.cross_validation, truth);
     if (!no_mc) {
@@ -243,9 +243,10 @@ int main(int argc, char** argv) {
     if (as_json) {
       std::cout << row.dump() << std::endl;
     } else {
-      std::printf("%s %5.0f spp (%d passes, %s): relMSE render %.5f nlmeans %.5f nfor %.5f", scene.c_str(),
-                  f.total_spp(), f.passes(), ex.mode.c_str(), row["render"]["relmse"].get<double>(),
-                  row["nlmeans"]["relmse"].get<double>(), row["nfor"]["relmse"].get<double>());
+      std::printf("%s %5.0f spp (%d passes, %s): relMSE render %.5f nlmeans %.5f nfor %.5f",
+                  scene.c_str(), f.total_spp(), f.passes(), ex.mode.c_str(),
+                  row["render"]["relmse"].get<double>(), row["nlmeans"]["relmse"].get<double>(),
+                  row["nfor"]["relmse"].get<double>());
       for (const auto& [name, img] : ex.stages) {
         std::printf(" | %s %.5f", name.c_str(), row["stages"][name]["relmse"].get<double>());
       }

@@ -87,7 +87,8 @@ Planes feature_planes(const Geometry& g, const View& albedo, const View& normal,
         f.origin(6)[i] = a / (a + scale);
       }
       // NaN features were sanitised upstream (accumulator); keep any that slip through out.
-      for (int c = 0; c < 6; ++c) f.origin(c)[i] = std::isnan(f.origin(c)[i]) ? 0.0f : f.origin(c)[i];
+      for (int c = 0; c < 6; ++c)
+        f.origin(c)[i] = std::isnan(f.origin(c)[i]) ? 0.0f : f.origin(c)[i];
     }
   });
   nfor::replicate_border(g, f);
@@ -146,9 +147,9 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
   NforExtras::Timings sec;
   const auto t_start = Clock::now();
   auto t = t_start;
-  const int border = std::max({p.window_radius + p.patch_radius,
-                               p.prefilter_radius + p.prefilter_patch,
-                               p.selection_radius + p.selection_patch});
+  const int border =
+      std::max({p.window_radius + p.patch_radius, p.prefilter_radius + p.prefilter_patch,
+                p.selection_radius + p.selection_patch});
   const Geometry g(W, H, border + nfor::kVectorMargin);
   const nfor::Kernels& kern = nfor::kernels(p.isa);
   Planes x = nfor::load(g, in.colour, kMaxValue);
@@ -166,10 +167,11 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
   const float scale = dep.valid() ? depth_scale(dep, W, H) : 1.0f;
   const std::array<bool, 3> present = {alb.valid(), nrm.valid(), dep.valid()};
   sec.load = since(t);
-  const bool feature_halves = halves && (alb.valid() || nrm.valid() || dep.valid()) &&
-                              (!alb.valid() || (in.half_albedo[0].valid() && in.half_albedo[1].valid())) &&
-                              (!nrm.valid() || (in.half_normal[0].valid() && in.half_normal[1].valid())) &&
-                              (!dep.valid() || (in.half_depth[0].valid() && in.half_depth[1].valid()));
+  const bool feature_halves =
+      halves && (alb.valid() || nrm.valid() || dep.valid()) &&
+      (!alb.valid() || (in.half_albedo[0].valid() && in.half_albedo[1].valid())) &&
+      (!nrm.valid() || (in.half_normal[0].valid() && in.half_normal[1].valid())) &&
+      (!dep.valid() || (in.half_depth[0].valid() && in.half_depth[1].valid()));
   Planes features;
   if (feature_halves) {
     auto half = [&](std::size_t h) {
@@ -217,8 +219,8 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
     std::vector<bool> done(nk, false);
     for (std::size_t i = 0; i < nk; ++i) {
       if (done[i]) continue;
-      const float base = nfor::squarings_between(widest, p.bandwidths[i]) >= 0 ? widest
-                                                                                 : p.bandwidths[i];
+      const float base =
+          nfor::squarings_between(widest, p.bandwidths[i]) >= 0 ? widest : p.bandwidths[i];
       std::vector<int> squarings;
       std::vector<Planes*> out_a, out_b, h_a, h_b;
       for (std::size_t j = i; j < nk; ++j) {
@@ -244,8 +246,8 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
     Planes sel_a(g, 3), sel_b(g, 3), shares(g, static_cast<int>(nk));
     nfor::select_bandwidths(
         g, fa, fb, xa, xb, va, vb,
-        weights_on(kern, x, var, p.selection_radius, p.selection_patch, p.selection_k), sel_a, sel_b,
-        shares);
+        weights_on(kern, x, var, p.selection_radius, p.selection_patch, p.selection_k), sel_a,
+        sel_b, shares);
     if (extras && extras->want_stages) {
       auto mean_of = [&](const Planes& a, const Planes& b) {
         Image img(W, H, 3);
@@ -368,7 +370,8 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
   return y;
 }
 
-void NforDenoiser::denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const {
+void NforDenoiser::denoise(const DenoiseInputs& in, const Rect& out, Buffer& y,
+                           Buffer* dydx) const {
   if (out.empty()) return;
   NforExtras extras;
   extras.want_hat = dydx != nullptr;

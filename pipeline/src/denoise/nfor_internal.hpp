@@ -13,10 +13,10 @@
 
 namespace proden::nfor {
 
-constexpr int kFeatures = 7;           // albedo RGB, normal XYZ, depth
-constexpr int kColumns = 1 + kFeatures;  // the design [1, f_q - f_p] (§4)
+constexpr int kFeatures = 7;                            // albedo RGB, normal XYZ, depth
+constexpr int kColumns = 1 + kFeatures;                 // the design [1, f_q - f_p] (§4)
 constexpr int kPacked = kColumns * (kColumns + 1) / 2;  // upper triangle of X^T W X
-constexpr int kMaxData = 9;  // colour channels regressed at once: y, or y, x_A, x_B (§5.4, CV)
+constexpr int kMaxData = 9;      // colour channels regressed at once: y, or y, x_A, x_B (§5.4, CV)
 constexpr int kTileWidth = 32;   // tile of output pixels: a multiple of every ISA's lanes
 constexpr int kTileHeight = 16;  // ... (the weights of a tile: (2r+1)^2 x 512 floats)
 
@@ -194,10 +194,10 @@ struct WeightArgs {
   int channels = 3;
   std::ptrdiff_t stride = 0, doff = 0;
   int patch = 0;
-  float scale = 1.0f;            // 1 / (k^2 channels (2f+1)^2)
-  float* dist = nullptr;         // (kTileHeight + 2f) x kExtStride
-  float* hsum = nullptr;         // (kTileHeight + 2f) x kTileWidth
-  float* w = nullptr;            // kTileHeight x kTileWidth
+  float scale = 1.0f;     // 1 / (k^2 channels (2f+1)^2)
+  float* dist = nullptr;  // (kTileHeight + 2f) x kExtStride
+  float* hsum = nullptr;  // (kTileHeight + 2f) x kTileWidth
+  float* w = nullptr;     // kTileHeight x kTileWidth
 };
 
 // One kernel build: AVX-512, AVX2+FMA or the portable baseline.

@@ -18,7 +18,9 @@ namespace proden::nfor {
 namespace {
 
 // Index of (i, j), i <= j, in the packed upper triangle of X^T W X.
-constexpr int packed(int i, int j) { return i * kColumns - i * (i - 1) / 2 + (j - i); }
+constexpr int packed(int i, int j) {
+  return i * kColumns - i * (i - 1) / 2 + (j - i);
+}
 
 // Portable build: GCC vectors of 4 floats (one SSE2 / NEON register).
 namespace portable {
@@ -33,7 +35,9 @@ inline T vsqrt(T v) {
   return v;
 #endif
 }
-inline T vfma(T a, T b, T c) { return a * b + c; }  // no FMA in the baseline
+inline T vfma(T a, T b, T c) {
+  return a * b + c;  // no FMA in the baseline
+}
 // 16 registers: blocks of 1-2 rows of the normal equations.
 constexpr int kRows3[] = {0, 1, 2, 3, 4, 6, 8};
 constexpr int kRows9[] = {0, 1, 2, 3, 4, 5, 6, 7, 8};
@@ -49,8 +53,12 @@ namespace avx2 {
 typedef float T __attribute__((vector_size(32)));
 typedef std::int32_t I __attribute__((vector_size(32)));
 constexpr int kL = 8;
-inline T vsqrt(T v) { return _mm256_sqrt_ps(v); }
-inline T vfma(T a, T b, T c) { return _mm256_fmadd_ps(a, b, c); }
+inline T vsqrt(T v) {
+  return _mm256_sqrt_ps(v);
+}
+inline T vfma(T a, T b, T c) {
+  return _mm256_fmadd_ps(a, b, c);
+}
 constexpr int kRows3[] = {0, 1, 2, 3, 4, 6, 8};
 constexpr int kRows9[] = {0, 1, 2, 3, 4, 5, 6, 7, 8};
 #include "nfor_kernel.inc"
@@ -64,8 +72,12 @@ typedef float T __attribute__((vector_size(64)));
 typedef std::int32_t I __attribute__((vector_size(64)));
 constexpr int kL = 16;
 // (Not _mm512_sqrt_ps: GCC 12 flags its _mm512_undefined_ps as uninitialised.)
-inline T vsqrt(T v) { return _mm512_maskz_sqrt_ps(0xFFFF, v); }
-inline T vfma(T a, T b, T c) { return _mm512_fmadd_ps(a, b, c); }
+inline T vsqrt(T v) {
+  return _mm512_maskz_sqrt_ps(0xFFFF, v);
+}
+inline T vfma(T a, T b, T c) {
+  return _mm512_fmadd_ps(a, b, c);
+}
 // 32 registers: two rows per block (~21 accumulators + the block's features and data).
 constexpr int kRows3[] = {0, 2, 4, 8};
 constexpr int kRows9[] = {0, 1, 2, 3, 4, 6, 8};
@@ -78,8 +90,7 @@ constexpr Kernels kPortable{"baseline", 4, portable::regress, portable::normal_e
                             portable::weights};
 #ifdef PRODEN_NFOR_X86
 constexpr Kernels kAvx2{"avx2", 8, avx2::regress, avx2::normal_equations, avx2::weights};
-constexpr Kernels kAvx512{"avx512", 16, avx512::regress, avx512::normal_equations,
-                          avx512::weights};
+constexpr Kernels kAvx512{"avx512", 16, avx512::regress, avx512::normal_equations, avx512::weights};
 #endif
 
 }  // namespace
@@ -127,7 +138,8 @@ void normal_equations_reference(const ChunkArgs& a, int lanes, double* out) {
       }
       for (int i = 0; i < kColumns; ++i) {
         for (int j = i; j < kColumns; ++j) out[packed(i, j) * lanes + l] += w * x[i] * x[j];
-        for (int c = 0; c < m; ++c) out[(kPacked + i * m + c) * lanes + l] += w * x[i] * a.data[c][q];
+        for (int c = 0; c < m; ++c)
+          out[(kPacked + i * m + c) * lanes + l] += w * x[i] * a.data[c][q];
       }
     }
   }

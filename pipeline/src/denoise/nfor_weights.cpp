@@ -12,7 +12,9 @@
 namespace proden::nfor {
 namespace {
 
-int round_up(int v, int m) { return (v + m - 1) / m * m; }
+int round_up(int v, int m) {
+  return (v + m - 1) / m * m;
+}
 
 }  // namespace
 
@@ -55,9 +57,10 @@ Planes load(const Geometry& g, const View& v, float limit) {
       float* row = p.origin(c) + g.offset(0, y);
       for (int x = 0; x < g.width; ++x) {
         const float val = v.at(x, y, c);
-        row[x] = std::isfinite(val) ? std::clamp(val, -limit, limit) : (std::isnan(val) ? 0.0f
-                                                                        : val > 0 ? limit
-                                                                                  : -limit);
+        row[x] = std::isfinite(val) ? std::clamp(val, -limit, limit)
+                                    : (std::isnan(val) ? 0.0f
+                                       : val > 0       ? limit
+                                                       : -limit);
       }
     }
   });
@@ -92,7 +95,9 @@ Planes box_mean(const Geometry& g, const Planes& p, int r) {
   return out;
 }
 
-int offsets_of(int radius) { return (2 * radius + 1) * (2 * radius + 1); }
+int offsets_of(int radius) {
+  return (2 * radius + 1) * (2 * radius + 1);
+}
 
 void tile_weights(const Geometry& g, const WeightSpec& s, const Rect& tile, TileScratch& sc) {
   const int r = s.radius, f = s.patch;
