@@ -1,19 +1,24 @@
 // Shared by the evaluation tools (proden_eval_levels, proden_nfor_eval): finding a scene's sample
-// levels and reference, and accumulating their passes.
+// levels and reference, accumulating their passes, the thread limit and the metrics' JSON form.
 //
 // Layouts: DIR/spp<L>/pass_*.exr with DIR/reference/pass_*.exr (bench/render_eval_set.sh), or
 // DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level, 0.
 #pragma once
 
+#include <tbb/global_control.h>
+
 #include <algorithm>
 #include <filesystem>
 #include <map>
+#include <memory>
+#include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include "proden/accumulator.hpp"
 #include "proden/io/pass_reader.hpp"
+#include "proden/metrics.hpp"
 
 namespace proden::bench {
 
@@ -78,6 +83,38 @@ inline EvalSet find_levels(const std::string& dir, const std::string& levels_csv
     s.levels = keep;
   }
   return s;
+}
+
+// The reference's mean and the mean of its own variance (0 with one pass), which the true MSE of
+// an image subtracts (`mse_corrected`).
+struct Reference {
+  FrameAccumulator frame;
+  FrameEstimate estimate;
+  double mean_variance = 0.0;
+};
+inline Reference read_reference(const std::vector<std::string>& files) {
+  Reference r;
+  r.frame = accumulate(files, false);
+  r.estimate = r.frame.estimate({.halves = false, .features = false});
+  r.mean_variance = r.frame.passes() >= 2 ? mean_of(r.estimate.variance) : 0.0;
+  return r;
+}
+
+// Error metrics of `img` against the reference, and its MSE less the reference's own variance.
+inline nlohmann::json metrics_json(const Image& img, const Image& ref, double ref_var) {
+  const ErrorMetrics m = compute_metrics(img, ref);
+  return {{"rmse", m.rmse},
+          {"relmse", m.relmse},
+          {"smape", m.smape},
+          {"mse", m.mse},
+          {"mse_corrected", std::max(m.mse - ref_var, 0.0)}};
+}
+
+// Caps TBB's threads at `threads` while the returned object lives (0 = no cap).
+inline std::unique_ptr<tbb::global_control> limit_threads(int threads) {
+  if (threads <= 0) return nullptr;
+  return std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                               static_cast<std::size_t>(threads));
 }
 
 }  // namespace proden::bench

@@ -41,6 +41,7 @@ namespace {
 
 using bench::accumulate;
 using bench::mean_of;
+using bench::metrics_json;
 
 // Wall seconds of the denoiser alone (NL-means, no derivative) over the frame in tiles.
 double denoise_only_seconds(const FrameEstimate& est, const PipelineOptions& po, Image* out) {
@@ -68,15 +69,6 @@ double denoise_only_seconds(const FrameEstimate& est, const PipelineOptions& po,
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (out) *out = std::move(y);
   return s;
-}
-
-json metrics_json(const Image& img, const Image& ref, double ref_var) {
-  const ErrorMetrics m = compute_metrics(img, ref);
-  return {{"rmse", m.rmse},
-          {"relmse", m.relmse},
-          {"smape", m.smape},
-          {"mse", m.mse},
-          {"mse_corrected", std::max(m.mse - ref_var, 0.0)}};
 }
 
 }  // namespace
@@ -143,11 +135,7 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "%s\n", e.what());
     return 2;
   }
-  std::unique_ptr<tbb::global_control> limit;
-  if (threads > 0) {
-    limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
-                                                  static_cast<std::size_t>(threads));
-  }
+  const auto limit = bench::limit_threads(threads);
 
   // Levels and reference.
   const bench::EvalSet set = bench::find_levels(dir, levels_csv);
@@ -157,9 +145,10 @@ int main(int argc, char** argv) {
   }
   const auto& levels = set.levels;
   const auto& ref_files = set.reference;
-  const FrameAccumulator ref_frame = accumulate(ref_files, false);
-  const FrameEstimate ref_est = ref_frame.estimate({.halves = false, .features = false});
-  const double ref_var = ref_frame.passes() >= 2 ? mean_of(ref_est.variance) : 0.0;
+  const bench::Reference ref = bench::read_reference(ref_files);
+  const FrameAccumulator& ref_frame = ref.frame;
+  const FrameEstimate& ref_est = ref.estimate;
+  const double ref_var = ref.mean_variance;
 
   if (!as_json) {
     std::printf("scene %s, reference %d pass(es) %.0f spp (mean variance %.3g)\n", dir.c_str(),

@@ -45,6 +45,7 @@ namespace {
 
 using bench::accumulate;
 using bench::mean_of;
+using bench::metrics_json;
 
 // Ranks with ties averaged.
 std::vector<double> ranks(const std::vector<double>& v) {
@@ -94,14 +95,6 @@ std::vector<double> window_means(const Image& img, int w) {
     }
   }
   return out;
-}
-
-json metrics_json(const Image& img, const Image& ref, double ref_var) {
-  const ErrorMetrics m = compute_metrics(img, ref);
-  return {{"rmse", m.rmse},
-          {"relmse", m.relmse},
-          {"smape", m.smape},
-          {"mse_corrected", std::max(m.mse - ref_var, 0.0)}};
 }
 
 // Share of the true error held by the 10 % of windows the estimate ranks worst, over the share
@@ -154,20 +147,17 @@ int main(int argc, char** argv) {
   app.add_option("--selection-radius", np.selection_radius);
   CLI11_PARSE(app, argc, argv);
   np.second_pass = !no_second;
-  std::unique_ptr<tbb::global_control> limit;
-  if (threads > 0) {
-    limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
-                                                  static_cast<std::size_t>(threads));
-  }
+  const auto limit = bench::limit_threads(threads);
   const bench::EvalSet set = bench::find_levels(dir, levels_csv);
   if (set.levels.empty()) {
     std::fprintf(stderr, "no passes in %s\n", dir.c_str());
     return 2;
   }
   const auto& ref_files = set.reference;
-  const FrameAccumulator ref_frame = accumulate(ref_files, false);
-  const FrameEstimate ref = ref_frame.estimate({.halves = false, .features = false});
-  const double ref_var = ref_frame.passes() >= 2 ? mean_of(ref.variance) : 0.0;
+  const bench::Reference reference = bench::read_reference(ref_files);
+  const FrameAccumulator& ref_frame = reference.frame;
+  const FrameEstimate& ref = reference.estimate;
+  const double ref_var = reference.mean_variance;
   const std::string scene = fs::path(dir).filename().string();
 
   for (const auto& [level, files] : set.levels) {
