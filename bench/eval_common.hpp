@@ -103,11 +103,9 @@ inline Reference read_reference(const std::vector<std::string>& files) {
 // Error metrics of `img` against the reference, and its MSE less the reference's own variance.
 inline nlohmann::json metrics_json(const Image& img, const Image& ref, double ref_var) {
   const ErrorMetrics m = compute_metrics(img, ref);
-  return {{"rmse", m.rmse},
-          {"relmse", m.relmse},
-          {"smape", m.smape},
-          {"mse", m.mse},
-          {"mse_corrected", std::max(m.mse - ref_var, 0.0)}};
+  return {
+      {"rmse", m.rmse},   {"relmse", m.relmse}, {"relmse_trimmed", m.relmse_trimmed},
+      {"smape", m.smape}, {"mse", m.mse},       {"mse_corrected", std::max(m.mse - ref_var, 0.0)}};
 }
 
 // Caps TBB's threads at `threads` while the returned object lives (0 = no cap).

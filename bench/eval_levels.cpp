@@ -97,7 +97,7 @@ int main(int argc, char** argv) {
   app.add_option("--mixer-weight", weight)
       ->check(CLI::IsMember({"uniform", "variance", "relative"}));
   std::string den = "nlmeans";
-  app.add_option("--denoiser", den)->check(CLI::IsMember({"nlmeans", "gaussian", "nfor"}));
+  app.add_option("--denoiser", den)->check(CLI::IsMember({"nlmeans", "gaussian", "nfor", "cascade"}));
   app.add_option("--sigma", po.gaussian_sigma);
   app.add_option("--rule", rule)->check(CLI::IsMember({"stein", "inverse-error"}));
   app.add_option("--divergence", divergence)->check(CLI::IsMember({"auto", "analytic", "mc"}));

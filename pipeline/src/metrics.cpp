@@ -1,7 +1,9 @@
 #include "proden/metrics.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
+#include <vector>
 
 namespace proden {
 
@@ -12,6 +14,8 @@ ErrorMetrics compute_metrics(const Image& image, const Image& reference) {
   }
   ErrorMetrics m;
   double se = 0.0, rel = 0.0, sm = 0.0;
+  std::vector<double> rels;
+  rels.reserve(image.plane(0).size() * 3);
   for (int c = 0; c < 3; ++c) {
     const auto ip = image.plane(c);
     const auto rp = reference.plane(c);
@@ -23,7 +27,9 @@ ErrorMetrics compute_metrics(const Image& image, const Image& reference) {
       }
       const double d = i - r;
       se += d * d;
-      rel += d * d / (r * r + 0.01);
+      const double rv = d * d / (r * r + 0.01);
+      rel += rv;
+      rels.push_back(rv);
       sm += std::abs(d) / (std::abs(i) + std::abs(r) + 0.01);
       ++m.values;
     }
@@ -34,6 +40,15 @@ ErrorMetrics compute_metrics(const Image& image, const Image& reference) {
     m.rmse = std::sqrt(m.mse);
     m.relmse = rel / n;
     m.smape = sm / n;
+    // Keep the smallest (1 - trim) share; partial sort, then sum in index order.
+    const auto keep = static_cast<std::size_t>(std::llround(n * (1.0 - kRelMseTrim)));
+    if (keep > 0 && keep < rels.size()) {
+      std::nth_element(rels.begin(), rels.begin() + static_cast<std::ptrdiff_t>(keep), rels.end());
+      rels.resize(keep);
+    }
+    double kept = 0.0;
+    for (double v : rels) kept += v;
+    m.relmse_trimmed = rels.empty() ? 0.0 : kept / static_cast<double>(rels.size());
   }
   return m;
 }

@@ -166,6 +166,22 @@ const DenoiserEntry kDenoisers[] = {
      [](const PipelineOptions& o) {
        return EstimateOptions{.halves = true, .features = o.features && o.nfor.use_features};
      }},
+    {"cascade",
+     "NL-means and NFOR blended per pixel by NL-means' SURE against their difference "
+     "(docs/cascade.md)",
+     [](const PipelineOptions& o) -> std::unique_ptr<const Denoiser> {
+       NlMeansParams nl = o.nlmeans;
+       nl.use_features = nl.use_features && o.features;
+       NforParams nf = o.nfor;
+       nf.use_features = nf.use_features && o.features;
+       return std::make_unique<CascadeDenoiser>(nl, nf, o.cascade);
+     },
+     // It runs NFOR, which reads the half buffers, and both read the features.
+     [](const PipelineOptions& o) {
+       return EstimateOptions{
+           .halves = true,
+           .features = o.features && (o.nlmeans.use_features || o.nfor.use_features)};
+     }},
     {"gaussian", "a Gaussian blur: fast, biased at edges",
      [](const PipelineOptions& o) -> std::unique_ptr<const Denoiser> {
        return std::make_unique<GaussianDenoiser>(o.gaussian_sigma);
@@ -200,6 +216,8 @@ std::string_view option_key(PipelineOption option) {
       return "t_test";
     case PipelineOption::ttest_dof:
       return "ttest_dof";
+    case PipelineOption::ttest_fine:
+      return "ttest_fine";
     case PipelineOption::features:
       return "features";
     case PipelineOption::tile:
@@ -282,9 +300,10 @@ DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, co
 struct Pipeline::Scratch {
   struct Tile {
     Denoised den;
-    Buffer alpha, alpha_final, z;
+    Buffer alpha, alpha_final, alpha_coarse, z;
     std::size_t floats() const {
-      return den.floats() + alpha.capacity() + alpha_final.capacity() + z.capacity();
+      return den.floats() + alpha.capacity() + alpha_final.capacity() + alpha_coarse.capacity() +
+             z.capacity();
     }
   };
   Image x, var, box_tmp;  // sanitised x and Var[x], the box filter's pass
@@ -355,6 +374,9 @@ void Pipeline::commit() {
   }
   if (o.t_test && o.ttest.radius < 0)
     fail(PipelineOption::t_test, "the window radius must be >= 0");
+  if (o.t_test && o.ttest_fine && o.ttest_fine_params.radius > o.ttest.radius) {
+    fail(PipelineOption::ttest_fine, "its window must not be wider than the t-test's");
+  }
   if (!o.weights.empty() && o.mixer != MixerKind::network) {
     fail(PipelineOption::weights, "weights are for the network mixer (mixer network)");
   }
@@ -551,8 +573,19 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
           }
         }
       }
-      t_rescale(din.colour, pooled, b.z.view(), b.alpha.view(), W, H, tile, o.ttest, b.alpha_final,
-                passes);
+      if (o.ttest_fine) {
+        // The authors' test, then the fine one on the same mix (docs/cascade.md).
+        b.alpha_coarse.reset(tile, 3);
+        t_rescale(din.colour, pooled, b.z.view(), b.alpha.view(), W, H, tile, o.ttest,
+                  b.alpha_coarse, passes);
+        TTestParams fine = o.ttest_fine_params;
+        fine.dof_correction = o.ttest.dof_correction;
+        t_rescale(din.colour, pooled, b.z.view(), b.alpha_coarse.view(), W, H, tile, fine,
+                  b.alpha_final, passes);
+      } else {
+        t_rescale(din.colour, pooled, b.z.view(), b.alpha.view(), W, H, tile, o.ttest,
+                  b.alpha_final, passes);
+      }
     } else {
       for (int c = 0; c < 3; ++c) {
         for (int py = tile.y0; py < tile.y1; ++py) {

@@ -80,6 +80,7 @@ TEST_CASE("CLI flags and the job's pipeline object parse to the same options", "
       {{"--mixer", "network"}, {{"mixer", "network"}}},
       {{"--denoiser", "gaussian", "--no-ttest", "--tile", "64"},
        {{"denoiser", "gaussian"}, {"t_test", false}, {"tile", 64}}},
+      {{"--no-ttest-fine"}, {{"ttest_fine", false}}},
       {{"--no-features", "--no-ttest-dof", "--divergence", "mc", "--probes", "2", "--search-radius",
         "3", "--patch-radius", "1", "--mixer-radius", "5"},
        {{"features", false},

@@ -78,8 +78,8 @@ void check_sane(const FrameEstimate& e, const PipelineResult& r, bool convex = t
   }
 }
 
-// Runs the pipeline with the learned mixer, with NFOR, and with the closed form and NL-means
-// (whose result is returned), checking all.
+// Runs the pipeline with the learned mixer, with NFOR, with the cascade, and with the closed form
+// and NL-means (whose result is returned), checking all.
 PipelineResult run_checked(const FrameAccumulator& f, const PipelineOptions& o = small_options()) {
   const FrameEstimate e = f.estimate();
   {
@@ -95,6 +95,14 @@ PipelineResult run_checked(const FrameAccumulator& f, const PipelineOptions& o =
     PipelineOptions nfor = o;
     nfor.denoiser = "nfor";
     Pipeline pipeline(nfor);
+    pipeline.commit();
+    check_sane(e, pipeline.execute(e), false);
+  }
+  {
+    INFO("cascade");  // NL-means + NFOR (docs/cascade.md): NFOR may leave the range of x
+    PipelineOptions cascade = o;
+    cascade.denoiser = "cascade";
+    Pipeline pipeline(cascade);
     pipeline.commit();
     check_sane(e, pipeline.execute(e), false);
   }

@@ -46,3 +46,16 @@ TEST_CASE("metrics refuse mismatched images", "[metrics]") {
   CHECK_THROWS_AS(compute_metrics(Image(2, 2, 3), Image(2, 3, 3)), std::invalid_argument);
   CHECK_THROWS_AS(compute_metrics(Image(2, 2, 1), Image(2, 2, 3)), std::invalid_argument);
 }
+
+TEST_CASE("the trimmed relMSE drops the largest 0.1 % of values", "[metrics]") {
+  // 1000 pixels x 3 channels = 3000 values: 3 of them (0.1 %) are dropped. Two fireflies carry
+  // error 1e4 each; every other value is off by 0.1 on a reference of 1 (relative error 0.01/1.01).
+  Image r(100, 10, 3, 1.0f), i(100, 10, 3, 1.1f);
+  i.at(3, 4, 0) = 101.0f;
+  i.at(50, 7, 2) = 101.0f;
+  const ErrorMetrics m = compute_metrics(i, r);
+  const double small = 0.1 * 0.1 / 1.01, big = 100.0 * 100.0 / 1.01;
+  // The two fireflies and one ordinary value go; the untrimmed mean keeps them.
+  CHECK(m.relmse_trimmed == Approx(small).epsilon(1e-5));
+  CHECK(m.relmse == Approx((2998 * small + 2 * big) / 3000).epsilon(1e-5));
+}

@@ -318,6 +318,7 @@ TEST_CASE("a job's pipeline object parses to the options it names, old spellings
                                      {"probes", 3},
                                      {"t_test", false},
                                      {"ttest_dof", false},
+                                     {"ttest_fine", false},
                                      {"features", false},
                                      {"tile", 64},
                                      {"search_radius", 4},
@@ -328,6 +329,7 @@ TEST_CASE("a job's pipeline object parses to the options it names, old spellings
   CHECK(all.divergence == DivergenceMethod::monte_carlo);
   CHECK(all.probes.count == 3);
   CHECK_FALSE(all.t_test);
+  CHECK_FALSE(all.ttest_fine);
   CHECK_FALSE(all.ttest.dof_correction);
   CHECK_FALSE(all.features);
   CHECK(all.tile == 64);
@@ -393,13 +395,17 @@ TEST_CASE("the pipeline asks the accumulator only for what its denoiser reads",
   CHECK_FALSE(reads("nlmeans", false).features);
   CHECK_FALSE(reads("gaussian", true).features);
   CHECK_FALSE(reads("none", true).features);
-  // NFOR regresses each half buffer on the other's weights (docs/nfor.md): only it reads halves.
+  // NFOR regresses each half buffer on the other's weights (docs/nfor.md): only it, and the
+  // cascade that runs it (docs/cascade.md), read halves.
+  CHECK(reads("cascade", true).halves);
+  CHECK(reads("cascade", true).features);
   CHECK(reads("nfor", true).halves);
   CHECK(reads("nfor", true).features);
   CHECK(reads("nfor", false).halves);
   CHECK_FALSE(reads("nfor", false).features);
   for (const auto& d : denoisers()) {
-    if (d.name != "nfor") CHECK_FALSE(reads(std::string(d.name), true).halves);
+    if (d.name != "nfor" && d.name != "cascade")
+      CHECK_FALSE(reads(std::string(d.name), true).halves);
   }
   // A frame estimated that way runs, and its inputs say what was used.
   FrameAccumulator f;

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "proden/accumulator.hpp"
+#include "proden/denoise/cascade.hpp"
 #include "proden/denoise/denoiser.hpp"
 #include "proden/denoise/gaussian.hpp"
 #include "proden/denoise/nfor.hpp"
@@ -56,6 +57,7 @@ enum class PipelineOption {
   probes,
   t_test,
   ttest_dof,
+  ttest_fine,
   features,
   tile,
   search_radius,
@@ -83,7 +85,8 @@ class PipelineError : public std::invalid_argument {
 struct PipelineOptions {
   std::string denoiser{kDefaultDenoiser};  // a registered denoiser (denoisers()) or "none"
   NlMeansParams nlmeans;
-  NforParams nfor;  // NFOR's parameters (docs/nfor.md); it reads the half buffers
+  NforParams nfor;        // NFOR's parameters (docs/nfor.md); it reads the half buffers
+  CascadeParams cascade;  // the NL-means + NFOR cascade's blend (docs/cascade.md)
   float gaussian_sigma = 2.0f;
   bool features = true;  // let the denoiser use albedo/normal/depth when present
   DivergenceMethod divergence = DivergenceMethod::automatic;
@@ -97,6 +100,12 @@ struct PipelineOptions {
   int variance_pool_radius = 2;  // mixer and t-test read Var[x] averaged over (2r+1)^2
   bool t_test = true;
   TTestParams ttest;
+  // A second t-test at a fine, fixed scale (Gaussian sigma 1 over 5x5), after the authors' one:
+  // their window grows flat (sigma = 100 sqrt(var)) exactly where the render is noisy, so a
+  // denoiser that smears a caustic within it keeps the window's mean and passes; the fine test
+  // compares the render and the mix pixel by pixel (docs/cascade.md).
+  bool ttest_fine = true;
+  TTestParams ttest_fine_params{.radius = 2, .sigma_scale = 0.0f, .sigma_floor = 1.0f};
   int tile = 256;  // inner tile size in pixels
 };
 
