@@ -106,8 +106,9 @@ int main(int argc, char** argv) {
   app.add_option("--k", po.nlmeans.k);
   app.add_option("--k-feature", po.nlmeans.k_feature);
   app.add_option("--tile", po.tile);
-  bool no_ttest = false;
+  bool no_ttest = false, no_fine = false;
   app.add_flag("--no-ttest", no_ttest);
+  app.add_flag("--no-ttest-fine", no_fine, "Without the fine-scale second t-test (docs/cascade.md)");
   std::string mixer_kind = "closed-form", weights;
   app.add_option("--mixer", mixer_kind)->check(CLI::IsMember({"closed-form", "network"}));
   app.add_option("--weights", weights, "Network weights (.pdnw; default: built-in)");
@@ -118,6 +119,7 @@ int main(int argc, char** argv) {
     po.weights_source = weights;
   }
   po.t_test = !no_ttest;
+  po.ttest_fine = !no_fine;
   po.ttest.dof_correction = !no_dof;
   po.features = !no_features;
   po.closed_form.weight = weight == "uniform"    ? WindowWeight::uniform

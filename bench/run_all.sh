@@ -15,6 +15,8 @@
 #   SKIP_RENDER=1    use the eval sets as they are
 #   SKIP_ACCURACY=1  keep bench/results/accuracy* (REUSE_ACCURACY=1: re-plot from the .jsonl)
 #   SKIP_PERF=1      keep bench/results/perf.* and micro.*   PERF_ARGS: extra bench_pipeline args
+#   SKIP_SAVINGS=1   keep bench/results/savings.md and levels_* (bench/savings.py --reuse
+#                    re-tabulates them)
 #   SKIP_NFOR=1      keep bench/results/nfor_* (NFOR's speed against NL-means and its evaluation
 #                    against the references, docs/nfor.md)
 set -euo pipefail
@@ -93,6 +95,11 @@ if [[ ${SKIP_NFOR:-0} != 1 ]]; then
     "$BIN/proden_nfor_eval" --scene "$EVALDATA/$s" --json > "$OUT/nfor_eval_$s.jsonl"
   done
   $PY bench/nfor_results.py
+fi
+
+if [[ ${SKIP_SAVINGS:-0} != 1 ]]; then
+  echo "== sample savings (render, NL-means, NFOR, proden on each, the cascade)"
+  $PY bench/savings.py --bin "$BIN" --evaldata "$EVALDATA" --scenes "$(tr ' ' ',' <<<"$SCENES")"
 fi
 
 echo "== bench/RESULTS.md"
