@@ -47,6 +47,7 @@ float noise(int pass, int x, int y, int c) {
 
 PipelineOptions small_options() {
   PipelineOptions o;
+  o.denoiser = "nlmeans";  // small and fast; the default (the cascade) has its own cases
   o.nlmeans.search_radius = 3;
   o.nlmeans.patch_radius = 1;
   o.tile = 16;

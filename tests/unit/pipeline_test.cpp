@@ -149,6 +149,7 @@ TEST_CASE("mean SURE matches the true MSE of the denoised image", "[pipeline][su
   for (const auto method : {DivergenceMethod::analytic, DivergenceMethod::monte_carlo}) {
     const FrameEstimate f = noisy(truth, 0.05f, 11);
     PipelineOptions o;
+    o.denoiser = "nlmeans";  // NL-means' SURE and tiling (not the default's)
     o.nlmeans.search_radius = 4;
     o.nlmeans.patch_radius = 2;
     o.divergence = method;
@@ -192,6 +193,7 @@ TEST_CASE("tiled runs equal the whole-image run", "[pipeline][tiles]") {
   for (float& v : f.normal.plane(2)) v = 1.0f;
   for (const auto method : {DivergenceMethod::analytic, DivergenceMethod::monte_carlo}) {
     PipelineOptions o;
+    o.denoiser = "nlmeans";  // NL-means' SURE and tiling (not the default's)
     o.nlmeans.search_radius = 3;
     o.nlmeans.patch_radius = 2;
     o.divergence = method;
@@ -321,6 +323,7 @@ TEST_CASE("the result's estimated MSE matches its true MSE on known truth", "[pi
   const Image truth = truth_image(160, 160);  // borders (approximate derivative) stay a small share
   const FrameEstimate f = noisy(truth, 0.05f, 29);
   PipelineOptions o;
+  o.denoiser = "nlmeans";  // NL-means' SURE and tiling (not the default's)
   o.nlmeans.search_radius = 4;
   o.nlmeans.patch_radius = 2;
   o.nlmeans.use_features = false;
