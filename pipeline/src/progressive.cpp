@@ -37,32 +37,6 @@ Image sanitized(const Image& img, float lo, float hi) {
   return out;
 }
 
-// Mean of each pixel's (2r+1)^2 neighbourhood clipped to the image, per channel (separable).
-Image box_mean(const Image& img, int r) {
-  if (r <= 0) return img;
-  const int W = img.width(), H = img.height();
-  Image tmp(W, H, img.channels()), out(W, H, img.channels());
-  for (int c = 0; c < img.channels(); ++c) {
-    for (int y = 0; y < H; ++y) {
-      for (int x = 0; x < W; ++x) {
-        double s = 0;
-        const int a = std::max(x - r, 0), b = std::min(x + r + 1, W);
-        for (int q = a; q < b; ++q) s += img.at(q, y, c);
-        tmp.at(x, y, c) = static_cast<float>(s / (b - a));
-      }
-    }
-    for (int y = 0; y < H; ++y) {
-      const int a = std::max(y - r, 0), b = std::min(y + r + 1, H);
-      for (int x = 0; x < W; ++x) {
-        double s = 0;
-        for (int q = a; q < b; ++q) s += tmp.at(x, q, c);
-        out.at(x, y, c) = static_cast<float>(s / (b - a));
-      }
-    }
-  }
-  return out;
-}
-
 bool all_zero(const Image& img) {
   const auto d = img.data();
   return std::all_of(d.begin(), d.end(), [](float v) { return v == 0.0f; });
@@ -146,7 +120,7 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
   const Image var = sanitized(frame.variance, 0.0f, kMaxVariance);
   // The mixer and the t-test judge x's error from a spatially pooled variance: with few passes a
   // pixel's own estimate is heavy-tailed (most pixels of a caustic never saw its fireflies).
-  const Image var_pooled = box_mean(var, options.variance_pool_radius);
+  const Image var_pooled = pool_variance(var, options.variance_pool_radius);
   res.result = x;
   res.denoised = x;
   res.alpha = Image(W, H, 3, 0.0f);
@@ -197,7 +171,9 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
     const double t2 = thread_cpu();
 
     const View pooled = view_of(var_pooled);
-    const View passes = frame.passes.same_size(frame.mean) ? view_of(frame.passes) : View{};
+    const VarianceOrigin origin{frame.passes.same_size(frame.mean) ? view_of(frame.passes) : View{},
+                                frame.variance_source == VarianceSource::renderer,
+                                options.variance_pool_radius};
     MixInputs mi{W, H, din.colour, y.view(), pooled, sure_buf.view(), div.view()};
     Buffer alpha(r_mix, 3);
     mixer.mix(mi, r_mix, alpha);
@@ -215,7 +191,7 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
         }
       }
       t_rescale(din.colour, pooled, z.view(), alpha.view(), W, H, tile, options.ttest, alpha_final,
-                passes);
+                origin);
     } else {
       for (int c = 0; c < 3; ++c) {
         for (int py = tile.y0; py < tile.y1; ++py) {
