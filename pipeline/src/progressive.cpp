@@ -134,7 +134,23 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
     return res;
   }
 
-  const DenoiseInputs din = denoise_inputs(frame, x, var, options.features && nlp.use_features);
+  // With few passes a pixel's own Var[x] has K - 1 degrees of freedom and often comes out far
+  // too low, and the filter then keeps its noise: when the variance is estimated (between passes,
+  // or the one-pass spatial fallback) the denoiser's weights read max(own, pooled). An outlier (a
+  // firefly) keeps its own, so its neighbours still take a share of its energy instead of it
+  // being averaged away. An exact variance (the renderer's, or pass counts unknown) is read as
+  // is. SURE and the divergence read the pixel's own, unbiased estimate (docs/pipeline.md,
+  // "Few passes").
+  const bool estimated_variance =
+      frame.variance_source != VarianceSource::renderer && frame.passes.same_size(frame.mean);
+  Image var_weights = var;
+  if (estimated_variance) {
+    for (std::size_t i = 0; i < var_weights.data().size(); ++i) {
+      var_weights.data()[i] = std::max(var_weights.data()[i], var_pooled.data()[i]);
+    }
+  }
+  const DenoiseInputs din =
+      denoise_inputs(frame, x, var_weights, options.features && nlp.use_features);
   // Only a denoiser that reads features makes them inputs of this run.
   const bool reads_features = &denoiser == &nlmeans;
   res.inputs = {reads_features && din.albedo.valid(), reads_features && din.normal.valid(),
@@ -163,11 +179,22 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
     denoiser.denoise(din, r_den, y, analytic ? &dydx : nullptr);
     const double t1 = thread_cpu();
     if (analytic) {
-      divergence_from_derivative(din.variance, dydx, r_den, div);
+      divergence_from_derivative(view_of(var), dydx, r_den, div);
     } else {
+      // The probes draw b ~ N(0, var_weights), so they estimate dy/dx * var_weights.
       divergence_monte_carlo(denoiser, din, r_den, y, options.probes, div);
+      if (estimated_variance) {
+        for (int c = 0; c < 3; ++c) {
+          for (int py = r_den.y0; py < r_den.y1; ++py) {
+            for (int px = r_den.x0; px < r_den.x1; ++px) {
+              const float vw = var_weights.at(px, py, c);
+              div.at(px, py, c) *= vw > 0.0f ? var.at(px, py, c) / vw : 0.0f;
+            }
+          }
+        }
+      }
     }
-    sure(din.colour, din.variance, y, div, r_den, sure_buf);
+    sure(din.colour, view_of(var), y, div, r_den, sure_buf);
     const double t2 = thread_cpu();
 
     const View pooled = view_of(var_pooled);
