@@ -34,12 +34,14 @@ double upper_normal_tail(double u) {
 // Local copies of what the kernel reads over g = out ⊕ (radius + pool), in double, zero outside
 // the image (taps there add exact zeros) with vsum = -1 there (never a window's maximum):
 //   d_c = z_c - x_c and the pooled variance v_c (read by the statistic, within out ⊕ radius),
-//   pbar = mean_c v_c and q = pbar^2 / dof per pixel (read by the degrees of freedom).
+//   pbar = mean_c of the raw per-pixel estimates and q = pbar^2 / (dof + 2) (read by the degrees
+//   of freedom; without raw estimates the pooled ones and q = pbar^2 / dof).
 struct Planes {
   Rect rect;
   std::size_t w = 0;
   std::vector<double> d[3], v[3], vsum, pbar, q;
   std::vector<double> cx, cy;  // 1 / (pooling box width) per column / row, 0 outside the image
+  bool raw = false;            // pbar and q come from the raw (unpooled) estimates
   std::size_t at(int x, int y) const {
     return static_cast<std::size_t>(y - rect.y0) * w + static_cast<std::size_t>(x - rect.x0);
   }
@@ -196,7 +198,9 @@ PRODEN_MULTIVERSION void lane_kernel(const Planes& pl, const Setup& s, int px0, 
           n2 += (2.0 * sr * mw + mw * mw) * pl.q[r];
         }
       }
-      if (n2 > 0.0 && n1 > 0.0) dof = std::max(n1 * n1 / n2, 1.0);
+      // With the raw estimates plugged in, (sum b vhat)^2 overstates (sum b sigma^2)^2 by
+      // Var[sum b vhat] = 2 sum b^2 sigma^4 / nu, i.e. the ratio by 2.
+      if (n2 > 0.0 && n1 > 0.0) dof = std::max(n1 * n1 / n2 - (pl.raw ? 2.0 : 0.0), 1.0);
     }
     out.dof[l] = dof;
   }
@@ -240,14 +244,19 @@ Planes make_planes(const View& x, const View& variance, const View& z, const Rec
   }
   pl.pbar.assign(n, 0.0);
   pl.q.assign(n, 0.0);
+  pl.raw = origin.raw.valid();
   const Rect all = pl.rect.intersect(image);
   for (int py = all.y0; py < all.y1; ++py) {
     for (int px = all.x0; px < all.x1; ++px) {
       const std::size_t i = pl.at(px, py);
+      const View& v = pl.raw ? origin.raw : variance;
       double sum = 0.0;
-      for (int c = 0; c < 3; ++c) sum += variance.at(px, py, c);
+      for (int c = 0; c < 3; ++c) sum += v.at(px, py, c);
       pl.pbar[i] = sum / 3.0;
-      pl.q[i] = pl.pbar[i] * pl.pbar[i] / pixel_dof(origin.passes.at(px, py, 0));
+      // sigma^4 / nu, estimated without bias from a raw chi-square estimate
+      // (E[vhat^2] = (1 + 2 / nu) sigma^4), or plugged in from the pooled one.
+      const double nu = pixel_dof(origin.passes.at(px, py, 0));
+      pl.q[i] = pl.pbar[i] * pl.pbar[i] / (pl.raw ? nu + 2.0 : nu);
     }
   }
   return pl;

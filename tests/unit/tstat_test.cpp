@@ -143,15 +143,20 @@ TStatistic brute_force(const Image& x, const Image& raw_var, const Image& passes
     }
   }
   for (int c = 0; c < 3; ++c) s.t[c] = std::abs(D[c]) / (std::sqrt(V[c]) + 1e-6);
+  // Welch-Satterthwaite with the raw estimates: sigma^4 / nu estimated by vhat^2 / (nu + 2), and
+  // the squared numerator's own variance (2 sum b^2 sigma^4 / nu) taken off.
   double n1 = 0, n2 = 0;
   for (int ry = 0; ry < H; ++ry) {
     for (int rx = 0; rx < W; ++rx) {
-      const double br = b[static_cast<std::size_t>(ry * W + rx)], pb = psum(rx, ry) / 3.0;
-      n1 += br * pb;
-      n2 += br * br * pb * pb / pixel_dof(passes.at(rx, ry, 0));
+      const double br = b[static_cast<std::size_t>(ry * W + rx)];
+      const double v = (static_cast<double>(raw_var.at(rx, ry, 0)) + raw_var.at(rx, ry, 1) +
+                        raw_var.at(rx, ry, 2)) /
+                       3.0;
+      n1 += br * v;
+      n2 += br * br * v * v / (pixel_dof(passes.at(rx, ry, 0)) + 2.0);
     }
   }
-  s.dof = n1 * n1 / n2;
+  s.dof = std::max(n1 * n1 / n2 - 2.0, 1.0);
   return s;
 }
 
@@ -175,7 +180,7 @@ TEST_CASE("the statistic and its Welch-Satterthwaite dof equal their definitions
     }
   }
   const Image pooled = pool_variance(var, pool);
-  const VarianceOrigin origin{view_of(passes), false, pool};
+  const VarianceOrigin origin{view_of(passes), false, pool, view_of(var)};
   const TTestParams p;
   for (const auto& [px, py] : {std::pair{11, 9}, std::pair{0, 0}, std::pair{22, 18},
                                std::pair{3, 15}, std::pair{14, 8}, std::pair{20, 2}}) {
@@ -191,14 +196,14 @@ TEST_CASE("the statistic and its Welch-Satterthwaite dof equal their definitions
   // estimates, (sum b)^2 / sum b^2, far more than K - 1.
   Image flat(W, H, 3, 1e-4f), two(W, H, 1, 2.0f);
   const TStatistic h = t_statistic(view_of(x), view_of(pool_variance(flat, pool)), view_of(z), W, H,
-                                   11, 9, p, {view_of(two), false, pool});
+                                   11, 9, p, {view_of(two), false, pool, view_of(flat)});
   CHECK(h.dof > 10.0);
-  const TStatistic h0 =
-      t_statistic(view_of(x), view_of(flat), view_of(z), W, H, 11, 9, p, {view_of(two), false, 0});
+  const TStatistic h0 = t_statistic(view_of(x), view_of(flat), view_of(z), W, H, 11, 9, p,
+                                    {view_of(two), false, 0, view_of(flat)});
   CHECK(h0.dof < h.dof);  // without pooling fewer raw estimates carry the variance
   // Renderer variance or unknown pass counts: the variance counts as exact.
   CHECK(std::isinf(t_statistic(view_of(x), view_of(pooled), view_of(z), W, H, 11, 9, p,
-                               {view_of(passes), true, pool})
+                               {view_of(passes), true, pool, view_of(var)})
                        .dof));
   CHECK(std::isinf(t_statistic(view_of(x), view_of(pooled), view_of(z), W, H, 11, 9, p).dof));
 }
@@ -300,7 +305,8 @@ Rate rejection_rate(const Sim& sim, int passes, Noise noise, int frames, const T
                   renderer_var);
     const Image pooled = pool_variance(est.variance, pool);
     const VarianceOrigin origin{view_of(est.passes),
-                                est.variance_source == VarianceSource::renderer, pool};
+                                est.variance_source == VarianceSource::renderer, pool,
+                                view_of(est.variance)};
     for (int py = 5; py < h - 5; py += 11) {
       for (int px = 5; px < w - 5; px += 11) {
         const Rect out{px, py, px + 1, py + 1};

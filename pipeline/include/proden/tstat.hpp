@@ -31,6 +31,7 @@ struct VarianceOrigin {
   View passes;            // 1 channel, passes per pixel; invalid = unknown (treated as exact)
   bool renderer = false;  // the renderer's own variance channels (hundreds of samples: exact)
   int pool_radius = 0;    // the variance view is pool_variance(raw, pool_radius)
+  View raw;               // the unpooled estimates, for the degrees of freedom (invalid: pooled)
 };
 
 // Var[x] as the mixer and the t-test read it: the mean over each pixel's (2r+1)^2 neighbourhood
