@@ -157,6 +157,8 @@ int main(int argc, char** argv) {
                  "Merge each level's passes into this many chunks (same spp; 0 = as rendered)")
       ->check(CLI::NonNegativeNumber);
   app.add_option("--mixer-radius", po.mixer.radius);
+  app.add_option("--mixer-wide-radius", po.mixer.wide_radius, "0: one window");
+  app.add_option("--garrote", po.mixer.garrote);
   app.add_option("--pool", po.variance_pool_radius);
   app.add_option("--t0", po.ttest.t0);
   bool no_dof = false;

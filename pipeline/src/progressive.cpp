@@ -200,8 +200,8 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
     const View pooled = view_of(var_pooled);
     const VarianceOrigin origin{frame.passes.same_size(frame.mean) ? view_of(frame.passes) : View{},
                                 frame.variance_source == VarianceSource::renderer,
-                                options.variance_pool_radius};
-    MixInputs mi{W, H, din.colour, y.view(), pooled, sure_buf.view(), div.view()};
+                                options.variance_pool_radius, view_of(var)};
+    MixInputs mi{W, H, din.colour, y.view(), pooled, sure_buf.view(), div.view(), origin};
     Buffer alpha(r_mix, 3);
     mixer.mix(mi, r_mix, alpha);
     const double t3 = thread_cpu();
