@@ -288,10 +288,14 @@ Setup make_setup(const TTestParams& p, const VarianceOrigin& origin, int width, 
 
 }  // namespace
 
-Image pool_variance(const Image& img, int r) {
-  if (r <= 0) return img;
+void pool_variance(const Image& img, int r, Image& tmp, Image& out) {
+  if (r <= 0) {
+    out = img;
+    return;
+  }
   const int W = img.width(), H = img.height();
-  Image tmp(W, H, img.channels()), out(W, H, img.channels());
+  if (!tmp.same_size(img) || tmp.channels() != img.channels()) tmp = Image(W, H, img.channels());
+  if (!out.same_size(img) || out.channels() != img.channels()) out = Image(W, H, img.channels());
   for (int c = 0; c < img.channels(); ++c) {
     for (int y = 0; y < H; ++y) {
       for (int x = 0; x < W; ++x) {
@@ -310,6 +314,11 @@ Image pool_variance(const Image& img, int r) {
       }
     }
   }
+}
+
+Image pool_variance(const Image& img, int r) {
+  Image tmp, out;
+  pool_variance(img, r, tmp, out);
   return out;
 }
 

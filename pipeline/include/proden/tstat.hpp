@@ -38,6 +38,8 @@ struct VarianceOrigin {
 // clipped to the image (r = 0: unchanged). With few passes a pixel's own estimate is
 // chi-square with K - 1 degrees of freedom; pooling gives it about (2r+1)^2 times more.
 Image pool_variance(const Image& variance, int radius);
+// The same into `out`, with `tmp` as scratch for the separable pass (both reused when sized).
+void pool_variance(const Image& variance, int radius, Image& tmp, Image& out);
 
 // Degrees of freedom of one pixel's own variance estimate from `passes` passes: K - 1 between
 // passes; the one-pass spatial fallback is the 3x3 spread of the mean (8).
