@@ -42,11 +42,16 @@ def main():
     ap.add_argument("--passes", default="2,3,4,8")
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--out", required=True)
+    ap.add_argument("--reuse", action="store_true", help="re-tabulate the .jsonl next to --out")
     a = ap.parse_args()
     levels = [int(x) for x in a.levels.split(",")]
     counts = [int(x) for x in a.passes.split(",")]
     rows = []
-    for scene in a.scenes.split(","):
+    jsonl = os.path.splitext(a.out)[0] + ".jsonl"
+    if a.reuse:
+        with open(jsonl) as fi:
+            rows = [json.loads(line) for line in fi]
+    for scene in a.scenes.split(",") if not a.reuse else []:
         d = os.path.join(a.evaldata, scene)
         if not os.path.isdir(os.path.join(d, "reference")):
             print(f"skip {scene}: no reference in {d}", file=sys.stderr)
@@ -59,9 +64,10 @@ def main():
                     r["build"] = tag
                     rows.append(r)
                 print(f"{scene} {p} passes ({tag}) done", file=sys.stderr)
-    with open(os.path.splitext(a.out)[0] + ".jsonl", "w") as fo:
-        for r in rows:
-            fo.write(json.dumps(r) + "\n")
+    if not a.reuse:
+        with open(jsonl, "w") as fo:
+            for r in rows:
+                fo.write(json.dumps(r) + "\n")
 
     def find(build, scene, spp, passes):
         for r in rows:
@@ -69,15 +75,16 @@ def main():
                 return r
         return None
 
-    before = bool(a.baseline_bin)
+    before = any(r["build"] == "before" for r in rows)
     L = ["Each level's passes (P = min(8, L) of L/P spp) merged into N chunks of the same total "
          "spp; default pipeline (NL-means with features, closed-form Stein mixer, t-test). "
          "*ratio* = result / min(render, denoised) (issue 10 asks <= 1.02 for N = 2, 3, 4)"
          + ("; *before* = the same tool on the branch point (Cornish-Fisher threshold, the "
-            "denoiser reading each pixel's own variance)." if before else ".") + "",
+            "denoiser reading each pixel's own variance, one mixer window): compare the absolute "
+            "numbers." if before else ".") + "",
          "",
          "Command: `bench/few_passes.py --bin " + a.bin
-         + (f" --baseline-bin {a.baseline_bin}" if before else "")
+         + (f" --baseline-bin {a.baseline_bin}" if a.baseline_bin else "")
          + f" --evaldata {a.evaldata} --scenes {a.scenes} --levels {a.levels} --passes {a.passes}"
          + f" --out {a.out}`", ""]
     worst = {}
@@ -87,7 +94,7 @@ def main():
                 "| result | ratio |")
         sep = "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
         if before:
-            head += " before: denoised | result | ratio |"
+            head += " before: relMSE denoised | result | SMAPE result |"
             sep += "---:|---:|---:|"
         L += [head, sep]
         for spp in sorted({r["spp"] for r in rows if r["scene"] == scene}):
@@ -107,7 +114,7 @@ def main():
                 b = find("before", scene, spp, p) if before else None
                 if b is not None:
                     line += (f" {b['denoised']['relmse']:.4g} | {b['result']['relmse']:.4g} | "
-                             f"{ratio(b, 'relmse'):.3f} |")
+                             f"{b['result']['smape']:.4g} |")
                 L.append(line)
         L.append("")
     if worst:

@@ -3,7 +3,7 @@
 
 Generated parts: accuracy.md + accuracy_summary.json (bench/accuracy.py), perf.json + perf.txt
 (proden_bench_pipeline), cycles_1080p.json (Blender, same run), micro.txt (Google Benchmark).
-Hand-written parts, included verbatim: accumulation.md, daemon.md (measurements made by other
+Hand-written parts, included verbatim: accumulation.md, daemon.md, few_passes.md (measurements made by other
 tools; edit them there, not in RESULTS.md).
 """
 import json
@@ -201,7 +201,8 @@ def main():
          "output). The *Accumulation* and *Daemon* sections were measured by other tools and are "
          "kept as hand-written parts, `bench/results/accumulation.md` and "
          "`bench/results/daemon.md`, which the generator includes verbatim: edit those files. "
-         "So is `bench/results/closing_extra.md`, the interpretation at the end.",
+         "So are `bench/results/few_passes.md` (written by `bench/few_passes.py`) and "
+         "`bench/results/closing_extra.md`, the interpretation at the end.",
          "",
          "Machine: the project's 2-core AVX-512 VM (Debian 12, g++ 12 -O3, no -march), shared "
          "with other jobs while measuring: absolute seconds are noisy; compare ratios within one "
@@ -209,6 +210,9 @@ def main():
          "`bench/render_eval_set.sh` and live outside the repo.", ""]
     if acc:
         L.append(read("accuracy.md"))
+    few = read("few_passes.md")  # bench/few_passes.py (hand-run: it needs the eval sets twice)
+    if few:
+        L.append(few)
     if perf:
         perf_section(perf, cyc, L)
     network_section(L)
