@@ -317,10 +317,26 @@ void Pipeline::commit() {
   if (!(o.gaussian_sigma > 0.0f) || o.gaussian_sigma > kMaxGaussianSigma) {
     fail(PipelineOption::gaussian_sigma, "must be in (0, 21]");
   }
-  if (o.t_test && o.ttest.radius < 0)
-    fail(PipelineOption::t_test, "the window radius must be >= 0");
+  if (o.t_test && (o.ttest.radius < 0 || o.ttest.radius > kTTestMaxRadius)) {
+    fail(PipelineOption::t_test,
+         "the window radius must be in [0, " + std::to_string(kTTestMaxRadius) + "]");
+  }
+  if (o.t_test && o.variance_pool_radius > kTTestMaxRadius) {
+    fail(PipelineOption::variance_pool_radius,
+         "must be <= " + std::to_string(kTTestMaxRadius) + " with the t-test");
+  }
   if (!o.weights.empty() && o.mixer != MixerKind::network) {
     fail(PipelineOption::weights, "weights are for the network mixer (mixer network)");
+  }
+
+  // The t-test's rejection curve is tabulated once per (t0, slope) per process: now, not in the
+  // first frame.
+  if (o.t_test && o.ttest.dof_correction) {
+    try {
+      RejectionCurve::shared(o.ttest.t0, o.ttest.slope);
+    } catch (const std::invalid_argument& e) {
+      fail(PipelineOption::t_test, e.what());
+    }
   }
 
   // The stages, built into locals so a failure leaves nothing half-built.

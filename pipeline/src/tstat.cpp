@@ -21,8 +21,8 @@ namespace {
 
 constexpr double kSqrt2Pi = 2.5066282746310002;
 constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr int kLanes = 8;       // output pixels per kernel call: one AVX-512 register of doubles
-constexpr int kMaxRadius = 15;  // window and pooling radii the lane arrays hold
+constexpr int kLanes = 8;  // output pixels per kernel call: one AVX-512 register of doubles
+constexpr int kMaxRadius = kTTestMaxRadius;  // window and pooling radii the lane arrays hold
 constexpr int kMaxSpan = 2 * (2 * kMaxRadius) + 1;
 // The one-pass spatial fallback (accumulator.cpp): the spread of the 3x3 neighbourhood's means.
 constexpr double kSpatialDof = 8.0;

@@ -423,3 +423,18 @@ TEST_CASE("t-test: a biased mix is rejected with few passes too", "[ttest][calib
   CHECK(biased.value() > 0.95);
   CHECK(unbiased.value() < 0.005);
 }
+
+TEST_CASE("Pipeline::commit rejects t-test radii beyond the kernel's", "[ttest][object]") {
+  PipelineOptions o;
+  o.variance_pool_radius = kTTestMaxRadius + 1;
+  Pipeline p(o);
+  CHECK_THROWS_AS(p.commit(), PipelineError);
+  CHECK_FALSE(p.committed());
+  o.variance_pool_radius = 2;
+  o.ttest.radius = kTTestMaxRadius + 1;
+  p.set_options(o);
+  CHECK_THROWS_AS(p.commit(), PipelineError);
+  o.ttest.radius = 5;
+  p.set_options(o);
+  CHECK_NOTHROW(p.commit());
+}

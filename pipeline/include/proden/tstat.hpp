@@ -12,6 +12,9 @@
 
 namespace proden {
 
+// Largest window and variance-pooling radius the t-test takes (its kernel's lane arrays).
+inline constexpr int kTTestMaxRadius = 15;
+
 struct TTestParams {
   int radius = 5;              // 11x11 window
   float sigma_scale = 100.0f;  // s = sigma_scale * sqrt(clamp(mean_c var, 0, 1))
