@@ -76,7 +76,8 @@ def main():
         return None
 
     before = any(r["build"] == "before" for r in rows)
-    L = ["Each level's passes (P = min(8, L) of L/P spp) merged into N chunks of the same total "
+    L = ["## Few passes (`bench/few_passes.py`)", "",
+         "Each level's passes (P = min(8, L) of L/P spp) merged into N chunks of the same total "
          "spp; default pipeline (NL-means with features, closed-form Stein mixer, t-test). "
          "*ratio* = result / min(render, denoised) (issue 10 asks <= 1.02 for N = 2, 3, 4)"
          + ("; *before* = the same tool on the branch point (Cornish-Fisher threshold, the "
