@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <random>
 
+#include "daemon/frame_history.hpp"
 #include "daemon/processor.hpp"
 #include "proden/io/pass_reader.hpp"
 
@@ -511,7 +512,51 @@ protocol::FrameStatus Engine::frame(const std::string& id, long frame) const {
 
 Engine::ImageFile Engine::image(const std::string& id, long frame, const std::string& format,
                                 const std::string& layer) {
-  PreviewCache::check_request(format, layer);
+  PreviewCache::Request r;
+  r.format = format;
+  r.layer = layer;
+  return image(id, frame, r);
+}
+
+json Engine::history(const std::string& id, long frame) const {
+  {
+    std::lock_guard lock(mu_);
+    auto job = find(id);
+    if (!job->frames.count(frame)) {
+      throw ApiError(404, "not_found", "job " + id + " has no frame " + std::to_string(frame));
+    }
+  }
+  return FrameHistory::load(store_.history_path(id, frame));
+}
+
+json Engine::job_history(const std::string& id) const {
+  std::vector<long> frames;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& [no, fr] : find(id)->frames) {
+      if (fr.published_version > 0) frames.push_back(no);
+    }
+  }
+  json out = json::array();
+  for (long f : frames) {
+    out.push_back({{"frame", f}, {"versions", FrameHistory::load(store_.history_path(id, f))}});
+  }
+  return out;
+}
+
+json Engine::quarantined(const std::string& id) const {
+  std::lock_guard lock(mu_);
+  json all = find(id)->quarantine.to_json();
+  for (auto& q : all) {  // the API's form (as in a frame's `quarantined`)
+    q.erase("size");
+    q.erase("mtime_ns");
+  }
+  return all;
+}
+
+Engine::ImageFile Engine::image(const std::string& id, long frame,
+                                const PreviewCache::Request& request) {
+  PreviewCache::check_request(request.format, request.layer);
   fs::path exr;
   std::uint64_t version = 0;
   {
@@ -524,7 +569,7 @@ Engine::ImageFile Engine::image(const std::string& id, long frame, const std::st
     version = it->second.published_version;
     exr = output_base(job->spec, frame).string() + ".exr";
   }
-  return previews_.get(store_.cache_dir(id), exr, frame, version, format, layer);
+  return previews_.get(store_.cache_dir(id), exr, frame, version, request);
 }
 
 }  // namespace proden::daemon

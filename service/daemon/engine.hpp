@@ -63,6 +63,13 @@ class Engine {
   using ImageFile = PreviewCache::File;
   ImageFile image(const std::string& id, long frame, const std::string& format,
                   const std::string& layer);
+  ImageFile image(const std::string& id, long frame, const PreviewCache::Request& request);
+  // The frame's published versions (FrameHistory); 404 for an unknown job or frame.
+  nlohmann::json history(const std::string& id, long frame) const;
+  // Every frame's published versions: [{"frame", "versions"}], in frame order.
+  nlohmann::json job_history(const std::string& id) const;
+  // Every quarantined file of the job (frame, pass, path, kind, message, time).
+  nlohmann::json quarantined(const std::string& id) const;
   // Blocks until no frame is queued or running (tests, benchmarks); false on timeout.
   bool wait_idle(int timeout_ms);
 

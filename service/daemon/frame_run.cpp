@@ -7,6 +7,7 @@
 #include <cstdio>
 
 #include "daemon/files.hpp"
+#include "daemon/frame_history.hpp"
 #include "daemon/processor.hpp"
 #include "proden/error.hpp"
 #include "proden/hash.hpp"
@@ -173,16 +174,26 @@ FrameRun::Outcome FrameRun::run(Input in) {
     metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
     hooks_.published(rec.version, outputs);
     metrics_.inc("proden_frame_updates_total");
-    json data = {{"job", job_id},
+    // What the version is worth, for the accuracy-over-time chart (FrameHistory) and the event.
+    json entry = {
+        {"version", rec.version},
+        {"updated", rec.updated},
+        {"passes", rec.passes},
+        {"spp", rec.spp},
+        {"estimated_mse", rec.estimated_mse},
+        {"estimated_error", {{"mse", rec.estimated_mse}, {"source", rec.estimated_mse_source}}},
+        {"render_mse", out.render_mse}};
+    try {
+      FrameHistory::append(store_.history_path(job_id, frame_no), entry);
+    } catch (const std::exception& e) {  // a chart point lost; the version itself stands
+      spdlog::warn("job {} frame {}: history: {}", job_id, frame_no, e.what());
+    }
+    json data = entry;
+    data.update({{"job", job_id},
                  {"name", spec.name},
                  {"frame", frame_no},
-                 {"version", rec.version},
-                 {"passes", rec.passes},
-                 {"spp", rec.spp},
                  {"new_passes", accepted.size()},
-                 {"estimated_mse", rec.estimated_mse},
-                 {"updated", rec.updated},
-                 {"outputs", outputs}};
+                 {"outputs", outputs}});
     events_.publish("frame", data);
     spdlog::info("job {} frame {}: version {} ({} pass(es), {} spp)", job_id, frame_no, rec.version,
                  rec.passes, rec.spp);
