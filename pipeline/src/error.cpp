@@ -16,6 +16,10 @@ std::string_view to_string(InputErrorKind kind) {
       return "duplicate";
     case InputErrorKind::invalid_value:
       return "invalid_value";
+    case InputErrorKind::unsupported_format:
+      return "unsupported_format";
+    case InputErrorKind::too_large:
+      return "too_large";
   }
   return "unknown";
 }

@@ -15,6 +15,8 @@ enum class InputErrorKind {
   layout_mismatch,   // carries a different set of features than the frame's earlier passes
   duplicate,         // bit-identical to a pass already accumulated
   invalid_value,     // e.g. spp <= 0
+  unsupported_format,  // not a format the renderer profile reads (e.g. a PNG named .exr)
+  too_large,           // declares more pixels, channels or bytes than the read limits allow
 };
 
 std::string_view to_string(InputErrorKind kind);
