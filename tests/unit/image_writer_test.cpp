@@ -1,0 +1,85 @@
+// Atomic image writes relative to a held directory descriptor (io/image_writer.hpp): the file
+// lands in the directory that was opened, a symlink planted at its name is replaced rather than
+// written through, and OIIO writes only through the descriptor.
+#include <catch2/catch.hpp>
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "proden/io/image_writer.hpp"
+#include "proden/io/pass_reader.hpp"
+#include "test_support.hpp"
+
+using namespace proden;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::vector<io::NamedChannel> rgb(const Image& img) {
+  std::vector<io::NamedChannel> ch;
+  io::add_layer(ch, "", img);
+  return ch;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
+}
+
+}  // namespace
+
+TEST_CASE("write_image_at writes into the held directory, not where its path now leads",
+          "[io][writer]") {
+  test::TempDir dir;
+  const fs::path out = dir.path() / "out", outside = dir.path() / "outside";
+  fs::create_directories(out);
+  fs::create_directories(outside);
+  const int fd = ::open(out.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  REQUIRE(fd >= 0);
+  // After the directory was opened, its path is swapped for a symlink to the outside.
+  fs::rename(out, dir.path() / "out_real");
+  fs::create_symlink(outside, out);
+  const Image img(5, 4, 3, 0.5f);
+  io::write_image_at(fd, "frame_0001.exr", 5, 4, rgb(img));
+  io::WriteOptions png;
+  png.compression = "";
+  io::write_image_at(fd, "frame_0001.png", 5, 4, rgb(img), png);
+  ::close(fd);
+  CHECK(fs::is_empty(outside));
+  CHECK(io::read_rgb((dir.path() / "out_real" / "frame_0001.exr").string()).at(2, 2, 1) == 0.5f);
+  CHECK(slurp(dir.path() / "out_real" / "frame_0001.png").starts_with("\x89PNG"));
+  // No temp file left behind, and nothing created in the working directory by name.
+  for (const auto& e : fs::directory_iterator(dir.path() / "out_real")) {
+    CHECK(e.path().filename().string().front() != '.');
+  }
+}
+
+TEST_CASE("a symlink planted at the output name is replaced, never written through",
+          "[io][writer]") {
+  test::TempDir dir;
+  const fs::path victim = dir.path() / "victim.txt";
+  std::ofstream(victim) << "precious";
+  fs::create_symlink(victim, dir.path() / "frame.exr");
+  fs::create_hard_link(victim, dir.path() / "hard.exr");
+  const Image img(3, 3, 3, 1.0f);
+  io::write_image((dir.path() / "frame.exr").string(), 3, 3, rgb(img));
+  io::write_image((dir.path() / "hard.exr").string(), 3, 3, rgb(img));
+  CHECK(slurp(victim) == "precious");
+  CHECK_FALSE(fs::is_symlink(dir.path() / "frame.exr"));
+  CHECK(io::read_rgb((dir.path() / "frame.exr").string()).at(1, 1, 0) == 1.0f);
+  CHECK(fs::hard_link_count(victim) == 1);
+}
+
+TEST_CASE("write errors name the file and leave nothing behind", "[io][writer]") {
+  test::TempDir dir;
+  const Image img(3, 3, 3, 1.0f);
+  CHECK_THROWS_WITH(io::write_image((dir.path() / "nodir" / "f.exr").string(), 3, 3, rgb(img)),
+                    Catch::Matchers::Contains("nodir/f.exr"));
+  const int fd = ::open(dir.path().c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  CHECK_THROWS(io::write_image_at(fd, "a/b.exr", 3, 3, rgb(img)));
+  CHECK_THROWS(io::write_image_at(fd, "f.unknownformat", 3, 3, rgb(img)));
+  ::close(fd);
+  CHECK(fs::is_empty(dir.path()));
+}
