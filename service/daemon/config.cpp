@@ -30,12 +30,16 @@ void check_keys(const json& j, std::initializer_list<const char*> keys, const st
   }
 }
 
+void apply_hostile_input_json(Config& c, const json& j);
+json hostile_input_json(const Config& c);
+
 }  // namespace
 
 void apply_json(Config& c, const json& j) {
   check_keys(j,
              {"bind", "port", "state_dir", "allowed_roots", "token_file", "worker_threads",
-              "io_threads", "max_resident_frames", "log_level", "limits", "watch"},
+              "io_threads", "max_resident_frames", "log_level", "limits", "watch",
+              /* hostile input (issue 11): */ "input", "handler_threads"},
              "");
   take(j, "bind", c.bind, "");
   take(j, "port", c.port, "");
@@ -51,7 +55,9 @@ void apply_json(Config& c, const json& j) {
     check_keys(l,
                {"max_body_bytes", "max_upload_bytes", "max_header_bytes", "request_timeout_ms",
                 "upload_timeout_ms", "idle_timeout_ms", "max_connections", "sse_history",
-                "sse_keepalive_ms", "sse_queue_limit"},
+                "sse_keepalive_ms", "sse_queue_limit",
+                /* hostile clients (issue 11): */ "max_sse_streams", "max_sse_per_client",
+                "reserved_connections"},
                "limits.");
     take(l, "max_body_bytes", c.limits.max_body_bytes, "limits.");
     take(l, "max_upload_bytes", c.limits.max_upload_bytes, "limits.");
@@ -76,6 +82,58 @@ void apply_json(Config& c, const json& j) {
     take(w, "max_depth", c.watch.max_depth, "watch.");
     take(w, "inotify", c.watch.inotify, "watch.");
   }
+  apply_hostile_input_json(c, j);
+}
+
+// ---- hostile input (issue 11): its keys, kept together ----
+namespace {
+
+void apply_hostile_input_json(Config& c, const json& j) {
+  take(j, "handler_threads", c.handler_threads, "");
+  if (j.contains("limits")) {
+    const json& l = j["limits"];
+    take(l, "max_sse_streams", c.limits.max_sse_streams, "limits.");
+    take(l, "max_sse_per_client", c.limits.max_sse_per_client, "limits.");
+    take(l, "reserved_connections", c.limits.reserved_connections, "limits.");
+  }
+  if (j.contains("input")) {
+    const json& in = j["input"];
+    check_keys(in, {"max_pixels", "max_channels", "max_file_bytes", "max_read_bytes"}, "input.");
+    take(in, "max_pixels", c.input.max_pixels, "input.");
+    take(in, "max_channels", c.input.max_channels, "input.");
+    take(in, "max_file_bytes", c.input.max_file_bytes, "input.");
+    take(in, "max_read_bytes", c.input.max_read_bytes, "input.");
+  }
+  auto positive = [](long long v, const char* key) {
+    if (v < 1) throw std::runtime_error(std::string("config: ") + key + " must be at least 1");
+  };
+  positive(c.handler_threads, "handler_threads");
+  positive(c.limits.max_sse_streams, "limits.max_sse_streams");
+  positive(c.limits.max_sse_per_client, "limits.max_sse_per_client");
+  positive(static_cast<long long>(c.input.max_pixels), "input.max_pixels");
+  positive(c.input.max_channels, "input.max_channels");
+  if (c.limits.reserved_connections < 0 ||
+      c.limits.reserved_connections >= c.limits.max_connections) {
+    throw std::runtime_error("config: limits.reserved_connections must be in [0, max_connections)");
+  }
+}
+
+json hostile_input_json(const Config& c) {
+  return {{"max_pixels", c.input.max_pixels},
+          {"max_channels", c.input.max_channels},
+          {"max_file_bytes", c.input.max_file_bytes},
+          {"max_read_bytes", c.input.max_read_bytes}};
+}
+
+}  // namespace
+
+io::ReadLimits read_limits(const InputLimits& in, std::uint64_t max_file_bytes) {
+  io::ReadLimits r;
+  r.max_pixels = in.max_pixels;
+  r.max_channels = in.max_channels;
+  r.max_file_bytes = max_file_bytes;
+  r.max_memory_bytes = in.max_read_bytes;
+  return r;
 }
 
 void load_config_file(Config& c, const std::string& path) {
@@ -110,7 +168,12 @@ json to_json(const Config& c) {
             {"max_connections", c.limits.max_connections},
             {"sse_history", c.limits.sse_history},
             {"sse_keepalive_ms", c.limits.sse_keepalive_ms},
-            {"sse_queue_limit", c.limits.sse_queue_limit}}},
+            {"sse_queue_limit", c.limits.sse_queue_limit},
+            {"max_sse_streams", c.limits.max_sse_streams},
+            {"max_sse_per_client", c.limits.max_sse_per_client},
+            {"reserved_connections", c.limits.reserved_connections}}},
+          {"input", hostile_input_json(c)},
+          {"handler_threads", c.handler_threads},
           {"watch",
            {{"poll_interval_ms", c.watch.poll_interval_ms},
             {"settle_ms", c.watch.settle_ms},

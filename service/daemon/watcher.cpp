@@ -13,45 +13,6 @@ namespace proden::daemon {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-PassPattern::PassPattern(const std::string& pattern) {
-  std::string re;
-  int group = 0;
-  for (std::size_t i = 0; i < pattern.size();) {
-    if (pattern.compare(i, 7, "{frame}") == 0) {
-      re += "([0-9]+)";
-      frame_group_ = ++group;
-      i += 7;
-    } else if (pattern.compare(i, 6, "{pass}") == 0) {
-      re += "([A-Za-z0-9_-]+)";
-      pass_group_ = ++group;
-      i += 6;
-    } else if (pattern[i] == '#') {
-      std::size_t n = 0;
-      while (i + n < pattern.size() && pattern[i + n] == '#') ++n;
-      re += "([0-9]{" + std::to_string(n) + ",})";
-      frame_group_ = ++group;
-      i += n;
-    } else {
-      const char c = pattern[i];
-      if (c == '/') ++depth_;
-      if (std::strchr(".^$|()[]{}*+?\\", c)) re += '\\';
-      re += c;
-      ++i;
-    }
-  }
-  re_ = std::regex(re);
-}
-
-std::optional<PassPattern::Match> PassPattern::match(const std::string& relative) const {
-  std::smatch m;
-  if (!std::regex_match(relative, m, re_) || frame_group_ == 0 || pass_group_ == 0) {
-    return std::nullopt;
-  }
-  const std::string f = m[static_cast<std::size_t>(frame_group_)].str();
-  if (f.size() > 9) return std::nullopt;
-  return Match{std::stol(f), m[static_cast<std::size_t>(pass_group_)].str()};
-}
-
 bool is_temp_name(const std::string& name) {
   if (name.empty() || name.front() == '.' || name.back() == '~') return true;
   if (name.size() >= 4 && name.compare(name.size() - 4, 4, ".tmp") == 0) return true;

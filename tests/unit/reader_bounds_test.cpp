@@ -147,8 +147,8 @@ TEST_CASE("EXR header walk: real files pass, hostile sizes are refused", "[io][f
     bytes[5] |= 0x08;  // non-image (deep) flag
     CHECK(inspect_error(bytes).kind() == InputErrorKind::unsupported_format);
     bytes = test::exr_bytes(spec);
-    bytes[6] = 0x80;  // a flag that does not exist
-    CHECK(inspect_error(bytes).kind() == InputErrorKind::unsupported_format);
+    bytes[6] = 0x80;  // a flag that does not exist: corrupt
+    CHECK(inspect_error(bytes).kind() == InputErrorKind::unreadable);
   }
 }
 
