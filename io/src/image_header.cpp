@@ -119,14 +119,16 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
   Cursor c(src, name);
   c.pos = 4;
   const std::uint32_t version = c.u32();
+  // A wrong version or unknown flags after the magic number: a corrupt file (retried as
+  // unreadable), not a format choice.
   if ((version & 0xFF) != 2) {
-    fail(InputErrorKind::unsupported_format, name,
-         "OpenEXR file format version " + std::to_string(version & 0xFF) + " (only 2 exists)");
+    fail(InputErrorKind::unreadable, name,
+         "corrupt header: OpenEXR version " + std::to_string(version & 0xFF) + " (only 2 exists)");
   }
   constexpr std::uint32_t kTiled = 0x200, kLongNames = 0x400, kNonImage = 0x800,
                           kMultiPart = 0x1000;
   if (version & ~std::uint32_t{0xFF | kTiled | kLongNames | kNonImage | kMultiPart}) {
-    fail(InputErrorKind::unsupported_format, name, "unknown OpenEXR version flags");
+    fail(InputErrorKind::unreadable, name, "corrupt header: unknown OpenEXR version flags");
   }
   if (version & kNonImage) {
     fail(InputErrorKind::unsupported_format, name, "deep (non-image) OpenEXR data is not a pass");
