@@ -35,12 +35,13 @@ test: build test-asan
 asan: deps
 	cmake -S . -B $(ASAN_DIR) -DCMAKE_BUILD_TYPE=Debug -DPRODEN_SANITIZE=ON -DPRODEN_WERROR=$(WERROR) \
 	      -DPRODEN_BUILD_BENCH=OFF
-	cmake --build $(ASAN_DIR) -j $(JOBS) --target proden_unit_tests
+	cmake --build $(ASAN_DIR) -j $(JOBS) --target proden_unit_tests proden_daemon_tests
 
-# The sanitizer configuration runs the unit tests (the CLI/integration tests run in the Release tree).
+# The sanitizer configuration runs the unit tests and the daemon's unit tests (the CLI/integration
+# tests run in the Release tree).
 test-asan: asan
 	cd $(ASAN_DIR) && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 \
-	  UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 ctest --output-on-failure -L unit -j $(JOBS)
+	  UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 ctest --output-on-failure -L 'unit|daemon' -j $(JOBS)
 
 run: build
 	OUT_DIR=$(OUT_DIR) tools/run-daemon.sh

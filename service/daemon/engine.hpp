@@ -1,21 +1,21 @@
-// Engine: the daemon's jobs and frames. Owns the job store (state_dir/jobs/<id>/), takes stable
-// pass files from the Watcher and uploads, and runs frames on a bounded worker pool shared
-// fairly (round-robin) by all jobs: read passes -> accumulate -> persist (exactly once) ->
-// process -> publish a new version -> event. Passes arriving while a frame runs coalesce into its
-// next run. Thread-safe; HTTP handlers call it directly.
+// Engine: the daemon's front over its jobs and frames. It keeps the in-memory table of jobs and
+// frames (which passes each frame has, waits for or is reading), answers the API, takes stable
+// files from the Watcher and uploads, and hands frames to the Scheduler, which runs them as
+// FrameRuns; JobStore keeps the state on disk, Quarantine the refused files, PreviewCache the
+// image renditions. Thread-safe; HTTP handlers call it directly.
+//
+// Locks: a job's save lock, then the engine's lock, then the Scheduler's or Metrics' own. The
+// engine never calls the Watcher with its lock held (the Watcher calls back into the engine).
 #pragma once
 
 #include <atomic>
-#include <condition_variable>
 #include <cstdint>
-#include <deque>
 #include <filesystem>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <set>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -23,8 +23,13 @@
 #include "daemon/config.hpp"
 #include "daemon/events.hpp"
 #include "daemon/files.hpp"
+#include "daemon/frame_run.hpp"
 #include "daemon/frame_state.hpp"
+#include "daemon/job_store.hpp"
 #include "daemon/metrics.hpp"
+#include "daemon/preview_cache.hpp"
+#include "daemon/quarantine.hpp"
+#include "daemon/scheduler.hpp"
 #include "daemon/watcher.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/protocol/api.hpp"
@@ -33,7 +38,8 @@ namespace proden::daemon {
 
 class Engine {
  public:
-  Engine(const Config& config, const Roots& roots, Metrics& metrics, EventHub& events);
+  Engine(const Config& config, const Roots& roots, Metrics& metrics, EventHub& events,
+         FsHook fs_hook = {});
   ~Engine();
   Engine(const Engine&) = delete;
   Engine& operator=(const Engine&) = delete;
@@ -54,84 +60,61 @@ class Engine {
                         const std::string& body);
   std::vector<protocol::FrameStatus> frames(const std::string& id) const;
   protocol::FrameStatus frame(const std::string& id, long frame) const;
-  struct ImageFile {
-    std::filesystem::path path;
-    std::string content_type;
-  };
+  using ImageFile = PreviewCache::File;
   ImageFile image(const std::string& id, long frame, const std::string& format,
                   const std::string& layer);
   // Blocks until no frame is queued or running (tests, benchmarks); false on timeout.
   bool wait_idle(int timeout_ms);
 
  private:
-  struct Pending {
-    std::string pass;
-    std::filesystem::path path;
-    std::uint64_t size = 0;
-    std::int64_t mtime_ns = 0;
-    bool upload = false;
-  };
   struct Frame {
     FrameRecord rec;
     bool has_state = false;
     std::uint64_t published_version = 0;
     std::vector<std::string> outputs;
-    std::map<std::string, Pending> pending;
+    std::map<std::string, PendingPass> pending;
     std::set<std::string> ingested, inflight;
     std::map<std::string, int> attempts;
-    bool queued = false, running = false;
     std::shared_ptr<FrameAccumulator> acc;  // resident state (LRU-bounded)
     std::uint64_t last_used = 0;
-  };
-  struct Quarantined {
-    std::string path, kind, message, time;
-    std::uint64_t size = 0;
-    std::int64_t mtime_ns = 0;
+    bool has(const std::string& pass) const {
+      return ingested.count(pass) || pending.count(pass) || inflight.count(pass);
+    }
   };
   struct Job {
     protocol::JobSpec spec;
-    std::filesystem::path dir;  // state_dir/jobs/<id>
     std::map<long, Frame> frames;
-    std::deque<long> ready;
-    bool in_rotation = false;
+    Quarantine quarantine;
     bool deleted = false;
-    std::map<std::pair<long, std::string>, Quarantined> quarantine;
   };
 
   void load_state();
   void load_job(const std::filesystem::path& dir);
-  void worker();
-  void run_frame(const std::shared_ptr<Job>& job, long frame_no);
-  void enqueue(const std::shared_ptr<Job>& job, long frame_no, Frame& fr);  // mu_ held
-  void quarantine(const std::shared_ptr<Job>& job, long frame, const Pending& p,
+  void run_frame(const std::string& job_id, long frame_no);
+  void enqueue(const Job& job, long frame_no);  // mu_ held
+  void on_failed(const std::shared_ptr<Job>& job, long frame, const PendingPass& p,
+                 const Failure& f);
+  void quarantine(const std::shared_ptr<Job>& job, long frame, const PendingPass& p,
                   const std::string& kind, const std::string& message);
-  void save_job(const Job& job);
   void save_quarantine(const std::shared_ptr<Job>& job);
-  void update_gauges();  // mu_ held
-  void evict();          // mu_ held
-  void error_event(const std::string& job, long frame, const std::string& pass,
-                   const std::string& path, const std::string& kind, const std::string& message,
-                   bool quarantined);
+  void evict();  // mu_ held
   bool wanted(const FoundFile& f);
   void offer(const FoundFile& f);
   std::shared_ptr<Job> find(const std::string& id) const;  // mu_ held; 404 if absent
   protocol::FrameStatus status(const Job& job, const Frame& fr) const;
-  std::filesystem::path output_base(const Job& job, long frame) const;
-  std::filesystem::path state_path(const Job& job, long frame) const;
 
   Config config_;
   const Roots& roots_;
   Metrics& metrics_;
   EventHub& events_;
+  JobStore store_;
+  RetryPolicy retry_;
+  PreviewCache previews_;
   std::unique_ptr<Watcher> watcher_;
+  std::unique_ptr<Scheduler> scheduler_;
 
   mutable std::mutex mu_;
-  std::condition_variable cv_, idle_cv_;
   std::map<std::string, std::shared_ptr<Job>> jobs_;
-  std::deque<std::string> rotation_;  // jobs with ready frames, served round-robin
-  std::vector<std::thread> workers_;
-  bool stopping_ = false;
-  int running_ = 0;
   std::uint64_t use_clock_ = 0;
   std::atomic<bool> ready_{false};
 };

@@ -1,0 +1,212 @@
+#include "daemon/frame_run.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+
+#include "daemon/files.hpp"
+#include "daemon/processor.hpp"
+#include "proden/error.hpp"
+#include "proden/hash.hpp"
+#include "proden/io/pass_reader.hpp"
+#include "proden/protocol/json.hpp"
+
+#ifndef PRODEN_VERSION
+#define PRODEN_VERSION "dev"
+#endif
+
+namespace proden::daemon {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+}  // namespace
+
+fs::path output_base(const protocol::JobSpec& spec, long frame) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "_%04ld", frame);
+  return fs::path(spec.output.dir) / (spec.name + buf);
+}
+
+bool pass_less(const std::string& a, const std::string& b) {
+  const bool na = !a.empty() && a.size() < 19 && std::all_of(a.begin(), a.end(), ::isdigit);
+  const bool nb = !b.empty() && b.size() < 19 && std::all_of(b.begin(), b.end(), ::isdigit);
+  if (na && nb) {
+    const long long x = std::stoll(a), y = std::stoll(b);
+    return x != y ? x < y : a < b;
+  }
+  if (na != nb) return na;
+  return a < b;
+}
+
+void publish_error(EventHub& events, const std::string& job, long frame, const std::string& pass,
+                   const std::string& path, const std::string& kind, const std::string& message,
+                   bool quarantined) {
+  events.publish("error", {{"job", job},
+                           {"frame", frame},
+                           {"pass", pass},
+                           {"path", path},
+                           {"kind", kind},
+                           {"message", message},
+                           {"quarantined", quarantined}});
+}
+
+FrameRun::FrameRun(JobStore& store, Metrics& metrics, EventHub& events, Hooks hooks)
+    : store_(store), metrics_(metrics), events_(events), hooks_(std::move(hooks)) {}
+
+FrameRun::Outcome FrameRun::run(Input in) {
+  const protocol::JobSpec& spec = in.spec;
+  const std::string& job_id = spec.id;
+  const long frame_no = in.frame;
+  FrameRecord rec = std::move(in.record);
+  std::shared_ptr<FrameAccumulator> acc = std::move(in.acc);
+  std::vector<PendingPass>& batch = in.batch;
+  std::sort(batch.begin(), batch.end(),
+            [](const PendingPass& a, const PendingPass& b) { return pass_less(a.pass, b.pass); });
+  const fs::path state_file = store_.state_path(job_id, frame_no);
+
+  // 1. The frame's state: resident, persisted, or new.
+  try {
+    if (!acc) {
+      if (in.has_state) {
+        const auto t0 = Clock::now();
+        acc = std::make_shared<FrameAccumulator>(store_.load_frame(job_id, frame_no));
+        metrics_.observe("proden_stage_duration_seconds", "load", seconds_since(t0));
+      } else {
+        acc = std::make_shared<FrameAccumulator>();
+      }
+    }
+  } catch (const std::exception& e) {
+    spdlog::error("job {} frame {}: cannot load state: {}", job_id, frame_no, e.what());
+    metrics_.inc("proden_errors_total", "corrupt_state");
+    publish_error(events_, job_id, frame_no, "", state_file.string(), "corrupt_state", e.what(),
+                  false);
+    return {Result::state_unreadable, nullptr};
+  }
+
+  // 2. Read and accumulate each pass; a pass that fails is reported and left out.
+  io::ReadOptions ro;
+  ro.renderer = io::parse_renderer(spec.renderer).value_or(io::Renderer::automatic);
+  ro.spp = spec.spp;
+  std::vector<protocol::PassIdentity> accepted;
+  std::uint64_t accepted_bytes = 0;
+  for (const auto& p : batch) {
+    try {
+      auto t0 = Clock::now();
+      std::error_code ec;
+      const std::uint64_t size = fs::file_size(p.path, ec);
+      const std::int64_t mt = ec ? 0 : mtime_ns(p.path, ec);
+      if (ec) continue;  // gone: nothing to count (the watcher re-discovers a re-created file)
+      if (!p.upload && (size != p.size || mt != p.mtime_ns)) continue;  // changed: re-settles
+      auto bytes = read_file(p.path);
+      if (!bytes || bytes->size() != size) {
+        throw InputError(InputErrorKind::unreadable, p.path.string(), "cannot be read to the end");
+      }
+      protocol::PassIdentity id{p.pass, p.path.string(), size, mt,
+                                hash_bytes(std::span<const unsigned char>(*bytes))};
+      bytes.reset();
+      const Pass pass = io::read_pass(p.path.string(), ro);
+      metrics_.observe("proden_stage_duration_seconds", "read", seconds_since(t0));
+      t0 = Clock::now();
+      const AddResult r = acc->add(pass, p.pass);
+      metrics_.observe("proden_stage_duration_seconds", "accumulate", seconds_since(t0));
+      if (r.dropped_pixels > 0) {
+        spdlog::warn("{}: {} non-finite pixel(s) dropped", p.path.string(), r.dropped_pixels);
+      }
+      accepted.push_back(id);
+      accepted_bytes += size;
+    } catch (...) {
+      hooks_.failed(p, classify_current_exception());
+    }
+  }
+
+  if (accepted.empty() && !in.republish) return {Result::done, acc};
+
+  // 3. Commit (persist), then publish.
+  try {
+    auto t0 = Clock::now();
+    const FrameEstimate est = acc->estimate({.halves = false, .features = true});
+    metrics_.observe("proden_stage_duration_seconds", "estimate", seconds_since(t0));
+    const ProcessedFrame out = FrameProcessor::process(est, spec.pipeline);
+    for (const auto& [stage, s] : out.stage_seconds) {
+      metrics_.observe("proden_stage_duration_seconds", stage, s);
+    }
+    if (!accepted.empty()) {
+      rec.frame = frame_no;
+      rec.version += 1;
+      rec.updated = protocol::now_rfc3339();
+      rec.estimated_mse = out.estimated_mse;
+      rec.estimated_mse_source = out.estimated_mse_source;
+      rec.passes = acc->passes();
+      rec.spp = acc->total_spp();
+      rec.width = acc->width();
+      rec.height = acc->height();
+      rec.inputs = acc->layout().to_string();
+      rec.variance_source = std::string(protocol::to_string(est.variance_source));
+      rec.low_confidence = est.low_confidence();
+      rec.digest = acc->state_digest();
+      rec.ingested.insert(rec.ingested.end(), accepted.begin(), accepted.end());
+      t0 = Clock::now();
+      // The commit point: statistics and pass identities together, atomically.
+      store_.save_frame(job_id, rec, *acc);
+      metrics_.observe("proden_stage_duration_seconds", "persist", seconds_since(t0));
+      hooks_.committed(rec, accepted);
+      metrics_.inc("proden_passes_ingested_total", {}, static_cast<double>(accepted.size()));
+      metrics_.inc("proden_ingested_bytes_total", {}, static_cast<double>(accepted_bytes));
+      for (const auto& p : batch) {
+        if (p.upload && std::any_of(accepted.begin(), accepted.end(),
+                                    [&](const auto& a) { return a.pass == p.pass; })) {
+          store_.remove_file(p.path);
+        }
+      }
+    }
+    t0 = Clock::now();
+    fs::create_directories(spec.output.dir);
+    const std::vector<std::pair<std::string, std::string>> attrs = {
+        {"Software", std::string("proden ") + PRODEN_VERSION},
+        {"proden:passes", std::to_string(rec.passes)},
+        {"proden:spp", std::to_string(rec.spp)},
+        {"proden:inputs", rec.inputs},
+        {"proden:variance_source", rec.variance_source},
+        {"proden:low_confidence", rec.low_confidence ? "true" : "false"},
+    };
+    const auto outputs =
+        FrameProcessor::publish(out, output_base(spec, frame_no).string(), spec.output.png, attrs);
+    store_.save_published(job_id, frame_no, rec.version);
+    metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
+    hooks_.published(rec.version, outputs);
+    metrics_.inc("proden_frame_updates_total");
+    json data = {{"job", job_id},
+                 {"name", spec.name},
+                 {"frame", frame_no},
+                 {"version", rec.version},
+                 {"passes", rec.passes},
+                 {"spp", rec.spp},
+                 {"new_passes", accepted.size()},
+                 {"estimated_mse", rec.estimated_mse},
+                 {"updated", rec.updated},
+                 {"outputs", outputs}};
+    events_.publish("frame", data);
+    spdlog::info("job {} frame {}: version {} ({} pass(es), {} spp)", job_id, frame_no, rec.version,
+                 rec.passes, rec.spp);
+    return {Result::done, acc};
+  } catch (const std::exception& e) {
+    // Persist or publish failed (disk full, permissions): drop the resident state so the next
+    // run reloads what is on disk; passes not persisted are offered again by the watcher.
+    spdlog::error("job {} frame {}: {}", job_id, frame_no, e.what());
+    metrics_.inc("proden_errors_total", "publish");
+    publish_error(events_, job_id, frame_no, "", "", "publish", e.what(), false);
+    return {Result::failed, nullptr};
+  }
+}
+
+}  // namespace proden::daemon

@@ -1,0 +1,79 @@
+// FrameRun: one run of one frame, and the exactly-once protocol in one place (docs/api.md,
+// "Ingestion rules"): read the batch's passes (each identified by path, size, mtime and content
+// hash), accumulate them, persist the statistics and the pass identities together in one atomic
+// file (the commit point), remove the accumulated uploads, publish the new version, record it as
+// published and announce it. A crash before the commit loses nothing (the passes are found
+// again); after it, the version is re-published on restart.
+#pragma once
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "daemon/events.hpp"
+#include "daemon/frame_state.hpp"
+#include "daemon/job_store.hpp"
+#include "daemon/metrics.hpp"
+#include "daemon/quarantine.hpp"
+#include "proden/accumulator.hpp"
+#include "proden/protocol/api.hpp"
+
+namespace proden::daemon {
+
+// <output.dir>/<name>_<frame, 4+ digits>: the published files are this plus .exr (and .png).
+std::filesystem::path output_base(const protocol::JobSpec& spec, long frame);
+
+// Natural order of pass names: numbers numerically, then names (the order passes accumulate in).
+bool pass_less(const std::string& a, const std::string& b);
+
+// Publishes an `error` event (docs/api.md, "Events").
+void publish_error(EventHub& events, const std::string& job, long frame, const std::string& pass,
+                   const std::string& path, const std::string& kind, const std::string& message,
+                   bool quarantined);
+
+class FrameRun {
+ public:
+  // What the run reports as it goes (called from the worker thread, without locks held).
+  struct Hooks {
+    // A pass of the batch could not be read or accumulated.
+    std::function<void(const PendingPass&, const Failure&)> failed;
+    // The new state is persisted: `record` (with the accepted passes) is the frame's state now.
+    std::function<void(const FrameRecord& record,
+                       const std::vector<protocol::PassIdentity>& accepted)>
+        committed;
+    // Version `version` is published as `outputs`.
+    std::function<void(std::uint64_t version, const std::vector<std::string>& outputs)> published;
+  };
+  FrameRun(JobStore& store, Metrics& metrics, EventHub& events, Hooks hooks);
+
+  struct Input {
+    protocol::JobSpec spec;
+    long frame = 0;
+    FrameRecord record;  // the frame's persisted state
+    bool has_state = false;
+    bool republish = false;                 // the persisted version is not published yet
+    std::shared_ptr<FrameAccumulator> acc;  // resident state, or null (loaded from the store)
+    std::vector<PendingPass> batch;         // passes to read, any order
+  };
+  enum class Result {
+    done,              // ran to the end (some passes may have failed)
+    state_unreadable,  // the persisted state could not be loaded; nothing was read
+    failed,            // persisting or publishing failed; the resident state must be dropped
+  };
+  struct Outcome {
+    Result result = Result::done;
+    std::shared_ptr<FrameAccumulator> acc;  // the state to keep resident (when done)
+  };
+  Outcome run(Input in);
+
+ private:
+  JobStore& store_;
+  Metrics& metrics_;
+  EventHub& events_;
+  Hooks hooks_;
+};
+
+}  // namespace proden::daemon

@@ -1,0 +1,176 @@
+// FrameRun: one run of a frame: read, accumulate, commit (persist), publish, announce.
+#include <catch2/catch.hpp>
+
+#include <fstream>
+
+#include "daemon/files.hpp"
+#include "daemon/frame_run.hpp"
+#include "daemon_support.hpp"
+
+namespace fs = std::filesystem;
+using namespace proden;
+using namespace proden::daemon;
+
+namespace {
+
+// A FrameRun wired to a real JobStore in a temp dir, recording what it reports.
+struct Rig {
+  test::TempDir t;
+  std::function<void(const std::string&, const fs::path&)> fault;
+  JobStore store{t.path() / "state", [this](const std::string& op, const fs::path& p) {
+                   if (fault) fault(op, p);
+                 }};
+  Metrics metrics;
+  EventHub hub{100};
+  std::shared_ptr<test::EventLog> events = test::listen(hub);
+  protocol::JobSpec spec = test::job_spec(t.path(), "j1");
+  std::vector<std::pair<PendingPass, Failure>> failed;
+  std::vector<FrameRecord> committed;
+  std::vector<std::uint64_t> published;
+
+  Rig() { store.create_job(spec); }
+
+  FrameRun::Outcome run(std::vector<PendingPass> batch, FrameRecord rec = {},
+                        bool has_state = false, bool republish = false,
+                        std::shared_ptr<FrameAccumulator> acc = nullptr) {
+    FrameRun::Hooks h;
+    h.failed = [this](const PendingPass& p, const Failure& f) { failed.emplace_back(p, f); };
+    h.committed = [this](const FrameRecord& r, const std::vector<protocol::PassIdentity>&) {
+      committed.push_back(r);
+    };
+    h.published = [this](std::uint64_t v, const std::vector<std::string>&) {
+      published.push_back(v);
+    };
+    FrameRun fr(store, metrics, hub, h);
+    FrameRun::Input in;
+    in.spec = spec;
+    in.frame = 1;
+    in.record = std::move(rec);
+    in.has_state = has_state;
+    in.republish = republish;
+    in.acc = std::move(acc);
+    in.batch = std::move(batch);
+    return fr.run(std::move(in));
+  }
+  fs::path watched(const std::string& pass) const { return t.path() / "w" / (pass + ".exr"); }
+};
+
+}  // namespace
+
+TEST_CASE("FrameRun: passes are committed with their identities, then published",
+          "[daemon][frame_run]") {
+  Rig r;
+  const auto b = test::write_pass(r.watched("10"), "10", 2);
+  const auto a = test::write_pass(r.watched("9"), "9", 1);
+  const auto out = r.run({b, a});
+  REQUIRE(out.result == FrameRun::Result::done);
+  REQUIRE(out.acc);
+  CHECK(out.acc->passes() == 2);
+  REQUIRE(r.committed.size() == 1);
+  const FrameRecord& rec = r.committed[0];
+  CHECK(rec.version == 1);
+  CHECK(rec.passes == 2);
+  CHECK(rec.spp == 8.0);
+  REQUIRE(rec.ingested.size() == 2);
+  CHECK(rec.ingested[0].pass == "9");  // natural order: 9 before 10
+  CHECK(rec.ingested[1].pass == "10");
+  CHECK(rec.ingested[0].size == a.size);
+  CHECK(rec.ingested[0].content_hash != 0);
+  // The commit point: the state on disk holds exactly this.
+  CHECK(r.store.load_frame("j1", 1).state_digest() == rec.digest);
+  CHECK(r.published == std::vector<std::uint64_t>{1});
+  CHECK(fs::exists(output_base(r.spec, 1).string() + ".exr"));
+  std::ifstream pub(r.store.published_path("j1", 1));
+  std::uint64_t v = 0;
+  pub >> v;
+  CHECK(v == 1);
+  const auto frames = r.events->of_type("frame");
+  REQUIRE(frames.size() == 1);
+  CHECK(frames[0].data["version"] == 1);
+  CHECK(frames[0].data["new_passes"] == 2);
+}
+
+TEST_CASE("FrameRun: an accumulated upload is removed, a failed pass is reported",
+          "[daemon][frame_run]") {
+  Rig r;
+  const auto up = test::write_pass(r.store.upload_dir("j1", 1) / "a.exr", "a", 1, true);
+  const fs::path bad = r.watched("b");
+  fs::create_directories(bad.parent_path());
+  std::ofstream(bad) << "not an image";
+  std::error_code ec;
+  const PendingPass bp{"b", bad, fs::file_size(bad), mtime_ns(bad, ec), false};
+  const auto out = r.run({up, bp});
+  REQUIRE(out.result == FrameRun::Result::done);
+  CHECK_FALSE(fs::exists(up.path));
+  REQUIRE(r.failed.size() == 1);
+  CHECK(r.failed[0].first.pass == "b");
+  CHECK(r.failed[0].second.kind == "unreadable");
+  CHECK(r.failed[0].second.cls == ErrorClass::bad_input);
+  REQUIRE(r.committed.size() == 1);
+  CHECK(r.committed[0].passes == 1);
+}
+
+TEST_CASE("FrameRun: a watched file that changed since discovery is left for the watcher",
+          "[daemon][frame_run]") {
+  Rig r;
+  auto p = test::write_pass(r.watched("a"), "a", 1);
+  p.size += 1;  // as discovered: a different size
+  const auto out = r.run({p});
+  CHECK(out.result == FrameRun::Result::done);
+  CHECK(r.failed.empty());
+  CHECK(r.committed.empty());
+  CHECK(r.published.empty());
+}
+
+TEST_CASE("FrameRun: a failed persist commits nothing and keeps the last state",
+          "[daemon][frame_run]") {
+  Rig r;
+  const auto a = test::write_pass(r.watched("a"), "a", 1);
+  REQUIRE(r.run({a}).result == FrameRun::Result::done);
+  const FrameRecord first = r.committed.at(0);
+  r.fault = [](const std::string& op, const fs::path&) {
+    if (op == "state") throw std::runtime_error("no space left on device (simulated)");
+  };
+  const auto b = test::write_pass(r.watched("b"), "b", 2);
+  const auto out = r.run({b}, first, true);
+  CHECK(out.result == FrameRun::Result::failed);
+  CHECK(r.committed.size() == 1);
+  CHECK(r.published.size() == 1);
+  CHECK(r.store.load_frame("j1", 1).state_digest() == first.digest);
+  const auto errors = r.events->of_type("error");
+  REQUIRE(errors.size() == 1);
+  CHECK(errors[0].data["kind"] == "publish");
+}
+
+TEST_CASE("FrameRun: an unreadable persisted state reads nothing", "[daemon][frame_run]") {
+  Rig r;
+  const auto a = test::write_pass(r.watched("a"), "a", 1);
+  REQUIRE(r.run({a}).result == FrameRun::Result::done);
+  const FrameRecord first = r.committed.at(0);
+  {
+    std::fstream f(r.store.state_path("j1", 1), std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(-20, std::ios::end);
+    f.put('\x5a');
+  }
+  const auto b = test::write_pass(r.watched("b"), "b", 2);
+  const auto out = r.run({b}, first, true);
+  CHECK(out.result == FrameRun::Result::state_unreadable);
+  CHECK(r.committed.size() == 1);
+  const auto errors = r.events->of_type("error");
+  REQUIRE(errors.size() == 1);
+  CHECK(errors[0].data["kind"] == "corrupt_state");
+}
+
+TEST_CASE("FrameRun: a persisted but unpublished version is published again",
+          "[daemon][frame_run]") {
+  Rig r;
+  const auto a = test::write_pass(r.watched("a"), "a", 1);
+  REQUIRE(r.run({a}).result == FrameRun::Result::done);
+  const FrameRecord first = r.committed.at(0);
+  fs::remove(output_base(r.spec, 1).string() + ".exr");
+  const auto out = r.run({}, first, true, true);
+  CHECK(out.result == FrameRun::Result::done);
+  CHECK(r.committed.size() == 1);  // nothing new committed
+  CHECK(r.published == std::vector<std::uint64_t>{1, 1});
+  CHECK(fs::exists(output_base(r.spec, 1).string() + ".exr"));
+}

@@ -1,0 +1,140 @@
+// Scheduler: round-robin fairness by job, one run per frame at a time, coalescing, pause.
+#include <catch2/catch.hpp>
+
+#include <atomic>
+#include <condition_variable>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "daemon/scheduler.hpp"
+
+using namespace proden::daemon;
+
+namespace {
+
+// Records the runs in order.
+struct Log {
+  std::mutex mu;
+  std::vector<std::string> runs;
+  void add(const std::string& job, long frame) {
+    std::lock_guard lock(mu);
+    runs.push_back(job + std::to_string(frame));
+  }
+  std::vector<std::string> get() {
+    std::lock_guard lock(mu);
+    return runs;
+  }
+};
+
+// A gate a run waits at until opened.
+struct Gate {
+  std::mutex mu;
+  std::condition_variable cv;
+  bool open = false;
+  int waiting = 0;
+  void wait() {
+    std::unique_lock lock(mu);
+    ++waiting;
+    cv.notify_all();
+    cv.wait(lock, [this] { return open; });
+  }
+  void wait_for_waiter() {
+    std::unique_lock lock(mu);
+    cv.wait(lock, [this] { return waiting > 0; });
+  }
+  void release() {
+    std::lock_guard lock(mu);
+    open = true;
+    cv.notify_all();
+  }
+};
+
+}  // namespace
+
+TEST_CASE("Scheduler: jobs take turns (round-robin)", "[daemon][scheduler]") {
+  Log log;
+  Scheduler s(1, [&](const std::string& j, long f) { log.add(j, f); });
+  for (long f = 1; f <= 4; ++f) s.enqueue("a", f);
+  for (long f = 1; f <= 2; ++f) s.enqueue("b", f);
+  CHECK(s.queued() == 6);
+  s.start();
+  REQUIRE(s.wait_idle(10000));
+  CHECK(log.get() == std::vector<std::string>{"a1", "b1", "a2", "b2", "a3", "a4"});
+  CHECK(s.queued() == 0);
+}
+
+TEST_CASE("Scheduler: a frame is queued once and re-runs once after work arrives mid-run",
+          "[daemon][scheduler]") {
+  Log log;
+  Gate gate;
+  std::atomic<int> concurrent{0}, max_concurrent{0};
+  Scheduler s(2, [&](const std::string& j, long f) {
+    const int now = ++concurrent;
+    max_concurrent = std::max(max_concurrent.load(), now);
+    if (log.get().empty()) {
+      log.add(j, f);
+      gate.wait();
+    } else {
+      log.add(j, f);
+    }
+    --concurrent;
+  });
+  s.start();
+  s.enqueue("a", 1);
+  gate.wait_for_waiter();
+  CHECK(s.busy("a", 1));
+  for (int i = 0; i < 5; ++i) s.enqueue("a", 1);  // while it runs: coalesce into one more run
+  gate.release();
+  REQUIRE(s.wait_idle(10000));
+  CHECK(log.get() == std::vector<std::string>{"a1", "a1"});
+  CHECK(max_concurrent == 1);
+  CHECK_FALSE(s.busy("a", 1));
+}
+
+TEST_CASE("Scheduler: a paused job keeps its queue until resumed", "[daemon][scheduler]") {
+  Log log;
+  Scheduler s(1, [&](const std::string& j, long f) { log.add(j, f); });
+  s.set_paused("a", true);
+  s.enqueue("a", 1);
+  s.enqueue("b", 1);
+  s.start();
+  REQUIRE(s.wait_idle(10000));
+  CHECK(log.get() == std::vector<std::string>{"b1"});
+  CHECK(s.busy("a", 1));
+  s.set_paused("a", false);
+  REQUIRE(s.wait_idle(10000));
+  CHECK(log.get() == std::vector<std::string>{"b1", "a1"});
+}
+
+TEST_CASE("Scheduler: removing a job drops its queued frames", "[daemon][scheduler]") {
+  Log log;
+  Scheduler s(1, [&](const std::string& j, long f) { log.add(j, f); });
+  s.enqueue("a", 1);
+  s.enqueue("a", 2);
+  s.enqueue("b", 1);
+  s.remove_job("a");
+  CHECK_FALSE(s.busy("a", 1));
+  s.start();
+  REQUIRE(s.wait_idle(10000));
+  CHECK(log.get() == std::vector<std::string>{"b1"});
+}
+
+TEST_CASE("Scheduler: stop lets the running frame finish and leaves the queue",
+          "[daemon][scheduler]") {
+  Log log;
+  Gate gate;
+  Scheduler s(1, [&](const std::string& j, long f) {
+    log.add(j, f);
+    if (f == 1) gate.wait();
+  });
+  s.start();
+  s.enqueue("a", 1);
+  gate.wait_for_waiter();
+  s.enqueue("a", 2);
+  s.request_stop();
+  gate.release();
+  s.stop();
+  CHECK(log.get() == std::vector<std::string>{"a1"});
+  CHECK(s.busy("a", 2));
+}
