@@ -66,7 +66,19 @@ std::string temp_name(const std::string& name) {
          std::to_string(rng() & 0xffffffffu) + target.extension().string();
 }
 
+thread_local OutputDirectory* t_bound = nullptr;
+
 }  // namespace
+
+OutputDirectory::OutputDirectory(std::string dir, int dir_fd)
+    : dir_(fs::path(std::move(dir)).lexically_normal().string()), fd_(dir_fd), outer_(t_bound) {
+  while (dir_.size() > 1 && dir_.back() == '/') dir_.pop_back();
+  t_bound = this;
+}
+
+OutputDirectory::~OutputDirectory() {
+  t_bound = outer_;
+}
 
 void add_layer(std::vector<NamedChannel>& out, const std::string& prefix, const Image& image,
                std::string_view suffixes) {
@@ -146,6 +158,14 @@ void write_image(const std::string& path, int width, int height,
                  std::span<const NamedChannel> channels, const WriteOptions& options) {
   const fs::path target(path);
   const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
+  std::string key = dir.lexically_normal().string();
+  while (key.size() > 1 && key.back() == '/') key.pop_back();
+  for (const OutputDirectory* b = t_bound; b; b = b->outer_) {
+    if (b->dir_ == key) {
+      write_image_at(b->fd_, target.filename().string(), width, height, channels, options, path);
+      return;
+    }
+  }
   const int dir_fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dir_fd < 0) {
     throw std::runtime_error(path + ": cannot open its directory: " + std::strerror(errno));

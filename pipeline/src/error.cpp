@@ -20,6 +20,8 @@ std::string_view to_string(InputErrorKind kind) {
       return "unsupported_format";
     case InputErrorKind::too_large:
       return "too_large";
+    case InputErrorKind::path_escape:
+      return "path_escape";
   }
   return "unknown";
 }

@@ -8,7 +8,7 @@
 #include <cerrno>
 #include <charconv>
 #include <cstring>
-#include <random>
+#include <utility>
 
 #include "daemon/files.hpp"
 #include "daemon/pass_pattern.hpp"
@@ -82,16 +82,9 @@ bool is_health(const std::vector<std::string>& p) {
   throw ApiError(405, "method_not_allowed", std::string("allowed: ") + allow);
 }
 
-std::string random_suffix() {
-  static thread_local std::mt19937_64 rng(std::random_device{}());
-  char buf[20];
-  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(rng()));
-  return buf;
-}
-
 // Removes a spooled upload when the request ends without handing it on.
 struct SpoolGuard {
-  std::filesystem::path path;
+  const std::filesystem::path& path;
   ~SpoolGuard() {
     if (!path.empty()) ::unlink(path.c_str());
   }
@@ -212,16 +205,14 @@ std::optional<Response> Api::before_body(const http::request_header<>& h, BodyPo
   if (is_upload(h.method(), target->path)) {
     const auto& p = target->path;
     try {
-      engine_.check_upload(p[3], p[5], p[7]);
+      // Streamed to a new hidden file in the job's upload area (the file system of its final
+      // place; a restart removes leftovers), never into memory.
+      policy.spool = engine_.upload_spool(p[3], p[5], p[7]);
     } catch (const ApiError& e) {
       return error(e.status(), e.code(), e.what());
     }
     policy.limit = config_.limits.max_upload_bytes;
     policy.timeout_ms = config_.limits.upload_timeout_ms;
-    // Streamed to a hidden file in the job's upload area (same file system as its final place;
-    // a restart removes leftovers).
-    policy.spool = std::filesystem::path(config_.state_dir) / "jobs" / p[3] / "uploads" /
-                   (".incoming." + random_suffix());
   }
   return std::nullopt;
 }
@@ -246,16 +237,8 @@ Handler::Reply Api::handle(Incoming& in) {
 }
 
 Handler::Reply Api::upload(Incoming& in, const std::vector<std::string>& p) {
-  // Interim bridge until the engine takes a spooled file: the body is read back from the spool.
-  const UniqueFd fd(open_regular_nofollow(in.body_file));
-  if (!fd) throw ApiError(500, "internal", "the stored upload is gone");
-  FileError err = FileError::none;
-  std::string why;
-  auto bytes = read_fd(fd.get(), config_.limits.max_upload_bytes, err, why);
-  if (!bytes) throw ApiError(500, "internal", "cannot read the stored upload: " + why);
-  const std::string body(bytes->bytes.begin(), bytes->bytes.end());
-  bytes.reset();
-  return {json_response(202, engine_.upload(p[3], p[5], p[7], body))};
+  const std::filesystem::path spooled = std::exchange(in.body_file, {});  // the engine owns it
+  return {json_response(202, engine_.upload_spooled(p[3], p[5], p[7], spooled))};
 }
 
 Handler::Reply Api::image(const std::string& id, long frame,

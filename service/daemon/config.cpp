@@ -112,9 +112,8 @@ void apply_hostile_input_json(Config& c, const json& j) {
   positive(c.limits.max_sse_per_client, "limits.max_sse_per_client");
   positive(static_cast<long long>(c.input.max_pixels), "input.max_pixels");
   positive(c.input.max_channels, "input.max_channels");
-  if (c.limits.reserved_connections < 0 ||
-      c.limits.reserved_connections >= c.limits.max_connections) {
-    throw std::runtime_error("config: limits.reserved_connections must be in [0, max_connections)");
+  if (c.limits.reserved_connections < 0) {
+    throw std::runtime_error("config: limits.reserved_connections must not be negative");
   }
 }
 

@@ -29,6 +29,7 @@ struct Limits {
   int max_sse_streams = 1024;      // event streams open at once (of max_connections)
   int max_sse_per_client = 256;    // event streams per source address
   int reserved_connections = 64;   // the last connections: health checks and tokens only
+                                   // (at most max_connections / 4)
 };
 
 // ---- hostile pass files (issue 11; docs/api.md "Limits"): bounds checked from a pass's header

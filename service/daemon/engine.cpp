@@ -1,6 +1,9 @@
 #include "daemon/engine.hpp"
 
+#include <fcntl.h>
 #include <spdlog/spdlog.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -207,6 +210,8 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
     in.spec = job->spec;
     in.frame = frame_no;
   }
+  in.roots = &roots_;
+  in.limits = read_limits(config_.input, config_.input.max_file_bytes);
   const std::vector<PendingPass> batch = in.batch;
 
   FrameRun::Hooks hooks;
@@ -322,12 +327,16 @@ protocol::JobSpec Engine::create_job(protocol::JobSpec spec) {
     }
     auto real = roots_.confine(p, why);
     if (!real) throw ApiError(403, "path_forbidden", std::string(field) + ": " + why);
-    std::error_code ec;
-    fs::create_directories(*real, ec);
-    if (ec || !fs::is_directory(*real)) {
+    // Created one directory at a time beneath the root: a symlink swapped in meanwhile is refused.
+    FileError fe = FileError::none;
+    if (!roots_.make_dirs(*real, fe, why)) {
+      if (fe == FileError::escape) {
+        throw ApiError(403, "path_forbidden", std::string(field) + ": " + why);
+      }
       throw ApiError(400, "invalid_path",
                      std::string(field) + ": cannot create directory " + real->string());
     }
+    std::error_code ec;
     // Re-check after creation: a symlink may have appeared in the meantime.
     const fs::path again = fs::canonical(*real, ec);
     if (ec || !roots_.contains(again)) {
@@ -432,14 +441,50 @@ void Engine::check_upload(const std::string& id, const std::string& frame,
 json Engine::upload(const std::string& id, const std::string& frame, const std::string& pass,
                     const std::string& body) {
   check_upload(id, frame, pass);
-  const long f = parse_frame(frame);
   if (body.empty()) throw ApiError(400, "invalid_pass", "empty body");
-  const fs::path tmp = store_.spool_upload(id, f, pass, body);
-  try {  // header check now, so a client sending garbage hears about it
+  return upload_spooled(id, frame, pass, store_.spool_upload(id, parse_frame(frame), pass, body));
+}
+
+fs::path Engine::upload_spool(const std::string& id, const std::string& frame,
+                              const std::string& pass) {
+  check_upload(id, frame, pass);
+  return store_.spool_path(id, parse_frame(frame), pass);
+}
+
+json Engine::upload_spooled(const std::string& id, const std::string& frame,
+                            const std::string& pass, const fs::path& spooled) {
+  struct Spool {  // removed unless it became the stored upload
+    const JobStore& store;
+    fs::path path;
+    ~Spool() {
+      if (!path.empty()) store.remove_file(path);
+    }
+  } tmp{store_, spooled};
+  check_upload(id, frame, pass);
+  const long f = parse_frame(frame);
+  std::string renderer;
+  {
+    std::lock_guard lock(mu_);
+    renderer = find(id)->spec.renderer;
+  }
+  std::uint64_t size = 0;
+  try {  // header check now (through the descriptor, within the limits), so a client sending
+         // garbage hears about it; the body is never read into memory here
+    const UniqueFd fd(open_regular_nofollow(spooled));
+    struct stat st {};
+    if (!fd || ::fstat(fd.get(), &st) != 0) {
+      throw ApiError(500, "internal", "the stored upload cannot be read back");
+    }
+    size = static_cast<std::uint64_t>(st.st_size);
+    if (size == 0) throw ApiError(400, "invalid_pass", "empty body");
+    ::fsync(fd.get());
     io::ReadOptions ro;
-    io::probe_pass(tmp.string(), ro);
+    ro.renderer = io::parse_renderer(renderer).value_or(io::Renderer::automatic);
+    ro.limits = read_limits(config_.input, config_.limits.max_upload_bytes);
+    io::probe_pass(io::FdSource(fd.get(), size), spooled.string(), ro);
+  } catch (const ApiError&) {
+    throw;
   } catch (const std::exception& e) {
-    store_.remove_file(tmp);
     throw ApiError(400, "invalid_pass", std::string("not a readable pass: ") + e.what());
   }
   std::lock_guard lock(mu_);
@@ -447,16 +492,16 @@ json Engine::upload(const std::string& id, const std::string& frame, const std::
   Frame& fr = job->frames[f];
   fr.rec.frame = f;
   if (fr.has(pass)) {
-    store_.remove_file(tmp);
     throw ApiError(409, "conflict", "frame " + frame + " already has pass " + pass);
   }
-  const fs::path path = store_.commit_upload(tmp, id, f, pass);
+  const fs::path path = store_.commit_upload(spooled, id, f, pass);
+  tmp.path.clear();
   std::error_code ec;
-  fr.pending[pass] = PendingPass{pass, path, fs::file_size(path, ec), mtime_ns(path, ec), true};
+  fr.pending[pass] = PendingPass{pass, path, size, mtime_ns(path, ec), true};
   job->quarantine.erase(f, pass);
   enqueue(*job, f);
   metrics_.inc("proden_uploads_total");
-  return {{"job", id}, {"frame", f}, {"pass", pass}, {"bytes", body.size()}, {"status", "queued"}};
+  return {{"job", id}, {"frame", f}, {"pass", pass}, {"bytes", size}, {"status", "queued"}};
 }
 
 protocol::FrameStatus Engine::status(const Job& job, const Frame& fr) const {
@@ -524,7 +569,28 @@ Engine::ImageFile Engine::image(const std::string& id, long frame, const std::st
     version = it->second.published_version;
     exr = output_base(job->spec, frame).string() + ".exr";
   }
-  return previews_.get(store_.cache_dir(id), exr, frame, version, format, layer);
+  if (format == "exr" && layer.empty()) return {exr, "image/x-exr"};  // the API opens it confined
+  // A rendition decodes the published EXR: open it beneath its root now, check its header within
+  // the read limits, and let the decoder read exactly that descriptor (/proc/self/fd/N names it).
+  FileError fe = FileError::none;
+  std::string why;
+  const UniqueFd fd = roots_.open(exr, O_RDONLY | O_NONBLOCK | O_NOCTTY, fe, why);
+  if (!fd) {
+    if (fe == FileError::escape) throw ApiError(403, "path_forbidden", why);
+    throw ApiError(404, "not_found", "the published image is not readable");
+  }
+  struct stat st {};
+  if (::fstat(fd.get(), &st) != 0 || !S_ISREG(st.st_mode)) {
+    throw ApiError(404, "not_found", "the published image is not a file");
+  }
+  try {
+    io::inspect_header(io::FdSource(fd.get(), static_cast<std::uint64_t>(st.st_size)),
+                       exr.string(), read_limits(config_.input, config_.input.max_file_bytes));
+  } catch (const std::exception& e) {
+    throw ApiError(500, "internal", e.what());
+  }
+  return previews_.get(store_.cache_dir(id), "/proc/self/fd/" + std::to_string(fd.get()), frame,
+                       version, format, layer);
 }
 
 }  // namespace proden::daemon

@@ -58,6 +58,12 @@ class Engine {
   void check_upload(const std::string& id, const std::string& frame, const std::string& pass) const;
   nlohmann::json upload(const std::string& id, const std::string& frame, const std::string& pass,
                         const std::string& body);
+  // Where the HTTP layer streams an upload's body (checks the target first, like check_upload).
+  std::filesystem::path upload_spool(const std::string& id, const std::string& frame,
+                                     const std::string& pass);
+  // An upload whose body was streamed to `spooled` (taken over: moved into place or removed).
+  nlohmann::json upload_spooled(const std::string& id, const std::string& frame,
+                                const std::string& pass, const std::filesystem::path& spooled);
   std::vector<protocol::FrameStatus> frames(const std::string& id) const;
   protocol::FrameStatus frame(const std::string& id, long frame) const;
   using ImageFile = PreviewCache::File;

@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <boost/asio/dispatch.hpp>
 #include <boost/asio/post.hpp>
@@ -359,8 +360,9 @@ class HttpServer::Session : public std::enable_shared_from_this<Session>, public
 
 HttpServer::HttpServer(const Config& config, Handler& handler, EventHub& events, Metrics& metrics)
     : config_(config), handler_(handler), events_(events), metrics_(metrics), acceptor_(ioc_) {
-  // Streams never take the reserved connections.
+  // The reserve is at most a quarter of all connections; streams never take it.
   auto& l = config_.limits;
+  l.reserved_connections = std::clamp(l.reserved_connections, 0, l.max_connections / 4);
   l.max_sse_streams = std::max(0, std::min(l.max_sse_streams,
                                            l.max_connections - l.reserved_connections));
 }

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <fstream>
+#include <random>
 
 #include "daemon/files.hpp"
 
@@ -155,6 +156,13 @@ void JobStore::save_published(const std::string& id, long frame, std::uint64_t v
 }
 
 // ---- uploads ---------------------------------------------------------------------------------
+
+fs::path JobStore::spool_path(const std::string& id, long frame, const std::string& pass) {
+  static thread_local std::mt19937_64 rng(std::random_device{}());
+  const fs::path dir = upload_dir(id, frame);
+  fs::create_directories(dir);
+  return dir / (".spool." + pass + "." + std::to_string(rng()) + ".exr");
+}
 
 fs::path JobStore::spool_upload(const std::string& id, long frame, const std::string& pass,
                                 const std::string& body) {

@@ -76,6 +76,8 @@ class JobStore {
   void save_published(const std::string& id, long frame, std::uint64_t version);
 
   // ---- uploads ----
+  // A unique temp path in the frame's upload directory (created) for a body streamed there.
+  std::filesystem::path spool_path(const std::string& id, long frame, const std::string& pass);
   // Stores an upload body under a temp name in the frame's upload directory (for checking).
   std::filesystem::path spool_upload(const std::string& id, long frame, const std::string& pass,
                                      const std::string& body);

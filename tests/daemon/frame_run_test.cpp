@@ -104,7 +104,7 @@ TEST_CASE("FrameRun: an accumulated upload is removed, a failed pass is reported
   CHECK_FALSE(fs::exists(up.path));
   REQUIRE(r.failed.size() == 1);
   CHECK(r.failed[0].first.pass == "b");
-  CHECK(r.failed[0].second.kind == "unreadable");
+  CHECK(r.failed[0].second.kind == "unsupported_format");  // not EXR or HDR by its bytes
   CHECK(r.failed[0].second.cls == ErrorClass::bad_input);
   REQUIRE(r.committed.size() == 1);
   CHECK(r.committed[0].passes == 1);

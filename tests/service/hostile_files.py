@@ -47,15 +47,15 @@ def exr(width=4, height=3, channels=(b"B", b"G", b"R"), value=0.25, extra=(), co
     for a in extra:
         out += a
     out += b"\0"
+    parts = [out]
     if pixels and not tiles:
         line = len(channels) * width * 4
         first = len(out) + 8 * height
-        for y in range(height):
-            out += struct.pack("<Q", first + y * (8 + line))
+        parts.append(b"".join(struct.pack("<Q", first + y * (8 + line)) for y in range(height)))
         row = struct.pack("<f", value) * (width * len(channels))
-        for y in range(height):
-            out += struct.pack("<ii", y, line) + row
-    return out + b"\0" * pad
+        parts.extend(struct.pack("<ii", y, line) + row for y in range(height))
+    parts.append(b"\0" * pad)
+    return b"".join(parts)
 
 
 def png(width=8, height=8, rgb=(200, 30, 10)):

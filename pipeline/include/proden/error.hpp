@@ -17,6 +17,7 @@ enum class InputErrorKind {
   invalid_value,     // e.g. spp <= 0
   unsupported_format,  // not a format the renderer profile reads (e.g. a PNG named .exr)
   too_large,           // declares more pixels, channels or bytes than the read limits allow
+  path_escape,         // its path leads outside the allowed directories (a symlink, a rename)
 };
 
 std::string_view to_string(InputErrorKind kind);

@@ -35,6 +35,25 @@ void write_image_at(int dir_fd, const std::string& name, int width, int height,
                     std::span<const NamedChannel> channels, const WriteOptions& options = {},
                     const std::string& display = {});
 
+// While alive, write_image() calls on this thread for files directly in `dir` go through the
+// directory descriptor `dir_fd` (write_image_at) instead of opening `dir` by path: a caller that
+// opened its output directory safely (the daemon, beneath an allowed root) binds it around code
+// that writes by path. Bindings nest; the innermost one for a directory wins.
+class OutputDirectory {
+ public:
+  OutputDirectory(std::string dir, int dir_fd);
+  ~OutputDirectory();
+  OutputDirectory(const OutputDirectory&) = delete;
+  OutputDirectory& operator=(const OutputDirectory&) = delete;
+
+ private:
+  std::string dir_;
+  int fd_;
+  OutputDirectory* outer_;
+  friend void write_image(const std::string&, int, int, std::span<const NamedChannel>,
+                          const WriteOptions&);
+};
+
 // Appends `prefix + suffix[c]` channels for each plane of `image` ("render." + "R", ...).
 void add_layer(std::vector<NamedChannel>& out, const std::string& prefix, const Image& image,
                std::string_view suffixes = "RGB");
