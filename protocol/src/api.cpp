@@ -1,9 +1,10 @@
 #include "proden/protocol/api.hpp"
 
+#include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <ctime>
-#include <regex>
 
 namespace proden::protocol {
 
@@ -23,6 +24,13 @@ std::string get_string(const json& obj, const char* key, const std::string& fiel
   }
   if (!obj[key].is_string()) bad(field, "must be a string");
   return obj[key].get<std::string>();
+}
+
+// 1..max characters, each one `ok` accepts (no regular expression on request text).
+template <class Pred>
+bool charset(const std::string& s, std::size_t max, Pred ok) {
+  return !s.empty() && s.size() <= max &&
+         std::all_of(s.begin(), s.end(), [&](char c) { return ok(static_cast<unsigned char>(c)); });
 }
 
 void check_pattern(const std::string& p) {
@@ -54,8 +62,10 @@ JobSpec parse_job_spec(const json& body) {
   if (!body.is_object()) throw ApiError(400, "invalid_body", "job body must be a JSON object");
   JobSpec j;
   j.name = get_string(body, "name", "name", true);
-  static const std::regex name_re("[A-Za-z0-9._-]{1,64}");
-  if (!std::regex_match(j.name, name_re) || j.name == "." || j.name == "..") {
+  const auto name_char = [](unsigned char c) {
+    return std::isalnum(c) || c == '.' || c == '_' || c == '-';
+  };
+  if (!charset(j.name, 64, name_char) || j.name == "." || j.name == "..") {
     bad("name", "1-64 characters of A-Z a-z 0-9 . _ -");
   }
   if (body.contains("watch") && !body["watch"].is_null()) {
@@ -84,9 +94,11 @@ JobSpec parse_job_spec(const json& body) {
     if (!p.is_object()) bad("pipeline", "must be an object");
     j.pipeline.denoiser = get_string(p, "denoiser", "pipeline.denoiser", false, "auto");
     j.pipeline.mixer = get_string(p, "mixer", "pipeline.mixer", false, "auto");
-    static const std::regex opt_re("[a-z0-9_-]{1,32}");
-    if (!std::regex_match(j.pipeline.denoiser, opt_re)) bad("pipeline.denoiser", "bad value");
-    if (!std::regex_match(j.pipeline.mixer, opt_re)) bad("pipeline.mixer", "bad value");
+    const auto opt_char = [](unsigned char c) {
+      return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
+    };
+    if (!charset(j.pipeline.denoiser, 32, opt_char)) bad("pipeline.denoiser", "bad value");
+    if (!charset(j.pipeline.mixer, 32, opt_char)) bad("pipeline.mixer", "bad value");
   }
   if (!body.contains("output") || !body["output"].is_object()) bad("output", "required object");
   const json& o = body["output"];
