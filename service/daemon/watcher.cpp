@@ -54,14 +54,21 @@ void Watcher::rescan() {
     auto n = ::write(wake_fd_, &one, sizeof one);
 }
 
-void Watcher::add_job(const std::string& id, const fs::path& dir, const std::string& pattern) {
+bool Watcher::add_job(const std::string& id, const fs::path& dir, const std::string& pattern) {
+  std::string why;
+  auto compiled = PassPattern::parse(pattern, why);
+  if (!compiled) {  // e.g. a job persisted before the pattern grammar was bounded
+    spdlog::error("job {}: watch.pattern '{}' is not watched: {}", id, pattern, why);
+    return false;
+  }
   {
     std::lock_guard lock(mu_);
     jobs_.erase(id);
-    jobs_.emplace(id, Job{dir, PassPattern(pattern)});
+    jobs_.emplace(id, Job{dir, std::move(*compiled)});
     watch_dir(id, dir, 0);
   }
   rescan();
+  return true;
 }
 
 void Watcher::remove_job(const std::string& id) {
@@ -83,8 +90,9 @@ void Watcher::watch_dir(const std::string& id, const fs::path& dir, int depth) {
   auto job = jobs_.find(id);
   if (job == jobs_.end()) return;
   if (inotify_fd_ >= 0) {
-    const int wd = ::inotify_add_watch(inotify_fd_, dir.c_str(),
-                                       IN_CLOSE_WRITE | IN_MOVED_TO | IN_CREATE | IN_ONLYDIR);
+    const int wd =
+        ::inotify_add_watch(inotify_fd_, dir.c_str(),
+                            IN_CLOSE_WRITE | IN_MOVED_TO | IN_CREATE | IN_MOVE_SELF | IN_ONLYDIR);
     if (wd >= 0) {
       auto& refs = watches_[wd];
       bool have = false;
@@ -143,6 +151,14 @@ void Watcher::read_inotify() {
       if (it == watches_.end()) continue;
       if (ev.mask & IN_IGNORED) {
         watches_.erase(it);
+        continue;
+      }
+      if (ev.mask & IN_MOVE_SELF) {
+        // A watched directory moved (perhaps out of the roots): its events would be reported
+        // under its old path. Drop the watch; the next scan watches whatever is there now.
+        ::inotify_rm_watch(inotify_fd_, ev.wd);
+        watches_.erase(it);
+        rescan_ = true;
         continue;
       }
       const auto refs = it->second;

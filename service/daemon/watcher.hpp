@@ -52,7 +52,8 @@ class Watcher {
 
   void start();
   void stop();
-  void add_job(const std::string& id, const std::filesystem::path& dir, const std::string& pattern);
+  // False (logged) when `pattern` is not a valid watch pattern: nothing is watched for the job.
+  bool add_job(const std::string& id, const std::filesystem::path& dir, const std::string& pattern);
   void remove_job(const std::string& id);
   void rescan();  // schedule a full scan soon (e.g. after a resume)
 

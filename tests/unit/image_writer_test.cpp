@@ -83,3 +83,29 @@ TEST_CASE("write errors name the file and leave nothing behind", "[io][writer]")
   ::close(fd);
   CHECK(fs::is_empty(dir.path()));
 }
+
+TEST_CASE("an OutputDirectory binding routes path-based writes through its descriptor",
+          "[io][writer]") {
+  test::TempDir dir;
+  const fs::path out = dir.path() / "out", outside = dir.path() / "outside";
+  fs::create_directories(out);
+  fs::create_directories(outside);
+  const int fd = ::open(out.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  REQUIRE(fd >= 0);
+  fs::rename(out, dir.path() / "held");
+  fs::create_symlink(outside, out);
+  const Image img(2, 2, 3, 0.25f);
+  {
+    const io::OutputDirectory bound(out.string() + "/", fd);
+    io::write_image((out / "a.exr").string(), 2, 2, rgb(img));
+    // Other directories are not affected.
+    io::write_image((dir.path() / "b.exr").string(), 2, 2, rgb(img));
+  }
+  // Unbound again: the path is followed as usual.
+  io::write_image((out / "c.exr").string(), 2, 2, rgb(img));
+  ::close(fd);
+  CHECK(fs::exists(dir.path() / "held" / "a.exr"));
+  CHECK(fs::exists(dir.path() / "b.exr"));
+  CHECK_FALSE(fs::exists(outside / "a.exr"));
+  CHECK(fs::exists(outside / "c.exr"));
+}
