@@ -375,7 +375,8 @@ HeaderSummary inspect_radiance(const ByteSource& src, const std::string& name,
 
 std::size_t MemorySource::read(std::uint64_t offset, void* buf, std::size_t n) const {
   if (offset >= bytes_.size()) return 0;
-  const std::size_t k = static_cast<std::size_t>(std::min<std::uint64_t>(n, bytes_.size() - offset));
+  const std::size_t k =
+      static_cast<std::size_t>(std::min<std::uint64_t>(n, bytes_.size() - offset));
   std::memcpy(buf, bytes_.data() + offset, k);
   return k;
 }
@@ -400,11 +401,20 @@ std::string describe_magic(std::span<const std::uint8_t> head) {
     std::string_view magic, name;
   };
   static constexpr Known known[] = {
-      {"\x89PNG\r\n\x1a\n"sv, "PNG"}, {"\xff\xd8\xff"sv, "JPEG"},  {"II*\0"sv, "TIFF"},
-      {"MM\0*"sv, "TIFF"},            {"GIF8"sv, "GIF"},           {"BM"sv, "BMP"},
-      {"SDPX"sv, "DPX"},              {"XPDS"sv, "DPX"},           {"PF\n"sv, "PFM"},
-      {"Pf\n"sv, "PFM"},              {"8BPS"sv, "Photoshop PSD"}, {"\0\0\0\x0cjP  "sv, "JPEG 2000"},
-      {"RIFF"sv, "RIFF (WebP?)"},     {"#?"sv, "Radiance-like text with an unknown signature"},
+      {"\x89PNG\r\n\x1a\n"sv, "PNG"},
+      {"\xff\xd8\xff"sv, "JPEG"},
+      {"II*\0"sv, "TIFF"},
+      {"MM\0*"sv, "TIFF"},
+      {"GIF8"sv, "GIF"},
+      {"BM"sv, "BMP"},
+      {"SDPX"sv, "DPX"},
+      {"XPDS"sv, "DPX"},
+      {"PF\n"sv, "PFM"},
+      {"Pf\n"sv, "PFM"},
+      {"8BPS"sv, "Photoshop PSD"},
+      {"\0\0\0\x0cjP  "sv, "JPEG 2000"},
+      {"RIFF"sv, "RIFF (WebP?)"},
+      {"#?"sv, "Radiance-like text with an unknown signature"},
   };
   for (const auto& k : known) {
     if (starts_with(head, k.magic)) return std::string(k.name);

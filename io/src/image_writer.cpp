@@ -36,8 +36,8 @@ class FdWriter final : public OIIO::Filesystem::IOProxy {
     std::size_t done = 0;
     const auto* p = static_cast<const char*>(buf);
     while (done < size) {
-      const ssize_t n = ::pwrite(fd_, p + done, size - done, static_cast<off_t>(offset) +
-                                                                 static_cast<off_t>(done));
+      const ssize_t n = ::pwrite(fd_, p + done, size - done,
+                                 static_cast<off_t>(offset) + static_cast<off_t>(done));
       if (n < 0 && errno == EINTR) continue;
       if (n <= 0) {
         failed_ = errno != 0 ? errno : EIO;

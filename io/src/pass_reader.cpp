@@ -99,7 +99,8 @@ std::pair<std::unique_ptr<OwnedFd>, std::uint64_t> open_regular(const std::strin
   if (fd < 0) {
     const int e = errno;
     fail(InputErrorKind::unreadable, path,
-         e == ENOENT ? std::string("no such file") : "cannot open: " + std::string(std::strerror(e)));
+         e == ENOENT ? std::string("no such file")
+                     : "cannot open: " + std::string(std::strerror(e)));
   }
   auto owned = std::make_unique<OwnedFd>(fd);
   struct stat st {};
@@ -122,15 +123,15 @@ Opened open_source(const ByteSource& src, const std::string& name, const ReadOpt
   if (!accepts(o.renderer, format)) {
     fail(InputErrorKind::unsupported_format, name,
          "a " + std::string(format == FileFormat::exr ? "OpenEXR" : "Radiance HDR") +
-             " file; the " + std::string(to_string(o.renderer)) +
-             " profile reads OpenEXR only");
+             " file; the " + std::string(to_string(o.renderer)) + " profile reads OpenEXR only");
   }
   const HeaderPart& first = op.summary.parts.front();
   if (!first.windows_equal) {
     fail(InputErrorKind::unsupported_format, name,
          "data window differs from display window (crop/border renders are not supported)");
   }
-  if (o.frame_size && (first.width != o.frame_size->first || first.height != o.frame_size->second)) {
+  if (o.frame_size &&
+      (first.width != o.frame_size->first || first.height != o.frame_size->second)) {
     fail(InputErrorKind::size_mismatch, name,
          std::to_string(first.width) + "x" + std::to_string(first.height) +
              " differs from the frame's " + std::to_string(o.frame_size->first) + "x" +
@@ -366,7 +367,8 @@ class ChannelLoader {
   std::vector<Image> load() {
     std::vector<Image> out;
     for (const auto& set : sets_) {
-      out.push_back(set.empty() ? Image() : Image(h_.width, h_.height, static_cast<int>(set.size())));
+      out.push_back(set.empty() ? Image()
+                                : Image(h_.width, h_.height, static_cast<int>(set.size())));
     }
     const std::size_t px = static_cast<std::size_t>(pixels());
     std::vector<float> buf;
@@ -424,8 +426,8 @@ Prepared prepare(const ByteSource& src, const std::string& name, const ReadOptio
   Prepared p{open_source(src, name, options), {}, {}, {}};
   p.h = read_header(*p.op.in, p.op.summary, name, options.limits);
   p.r = resolve(p.h, name, options, p.info);
-  ChannelLoader plan(*p.op.in, p.h, name, {p.r.colour, p.r.albedo, p.r.normal, p.r.depth,
-                                           p.r.variance});
+  ChannelLoader plan(*p.op.in, p.h, name,
+                     {p.r.colour, p.r.albedo, p.r.normal, p.r.depth, p.r.variance});
   // Counted as if the file were in memory: callers reading through a descriptor use less.
   p.info.read_bytes = plan.peak_bytes(src.size());
   check_budget(p.info.read_bytes, name, options.limits);
@@ -448,8 +450,7 @@ std::size_t FdSource::read(std::uint64_t offset, void* buf, std::size_t n) const
   return done;
 }
 
-PassInfo probe_pass(const ByteSource& source, const std::string& name,
-                    const ReadOptions& options) {
+PassInfo probe_pass(const ByteSource& source, const std::string& name, const ReadOptions& options) {
   return prepare(source, name, options).info;
 }
 

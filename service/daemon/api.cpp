@@ -32,8 +32,7 @@ std::string url_decode(std::string_view s, bool plus_is_space) {
   std::string out;
   out.reserve(s.size());
   for (std::size_t i = 0; i < s.size(); ++i) {
-    if (s[i] == '%' && i + 2 < s.size() && hex_value(s[i + 1]) >= 0 &&
-        hex_value(s[i + 2]) >= 0) {
+    if (s[i] == '%' && i + 2 < s.size() && hex_value(s[i + 1]) >= 0 && hex_value(s[i + 2]) >= 0) {
       out += static_cast<char>(hex_value(s[i + 1]) * 16 + hex_value(s[i + 2]));
       i += 2;
     } else if (plus_is_space && s[i] == '+') {
@@ -180,7 +179,8 @@ Response Api::json_response(int status, const json& body) const {
 
 Response Api::error(int status, const std::string& code, const std::string& message) {
   metrics_.inc("proden_errors_total", "http_" + std::to_string(status));
-  Response r = json_response(status, {{"error", {{"code", code}, {"message", io::printable(message)}}}});
+  Response r =
+      json_response(status, {{"error", {{"code", code}, {"message", io::printable(message)}}}});
   if (status == 401) r.set(http::field::www_authenticate, "Bearer realm=\"proden\"");
   return r;
 }

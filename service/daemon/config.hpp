@@ -25,20 +25,20 @@ struct Limits {
   int sse_keepalive_ms = 15000;
   std::size_t sse_queue_limit = 4096;  // pending events per client before it is dropped
 
-  // ---- hostile clients (issue 11; docs/api.md "Limits") ----
-  int max_sse_streams = 1024;      // event streams open at once (of max_connections)
-  int max_sse_per_client = 256;    // event streams per source address
-  int reserved_connections = 64;   // the last connections: health checks and tokens only
-                                   // (at most max_connections / 4)
+  // ---- hostile clients (issue 11; docs/api.md "Security and limits") ----
+  int max_sse_streams = 1024;     // event streams open at once (of max_connections)
+  int max_sse_per_client = 256;   // event streams per source address
+  int reserved_connections = 64;  // the last connections: health checks and tokens only
+                                  // (at most max_connections / 4)
 };
 
-// ---- hostile pass files (issue 11; docs/api.md "Limits"): bounds checked from a pass's header
+// ---- hostile pass files (issue 11; docs/api.md "Security and limits"): bounds checked from a pass's header
 // before it is decoded (io::ReadLimits). ----
 struct InputLimits {
-  std::uint64_t max_pixels = 7680ull * 4320;       // width * height (8K UHD)
-  int max_channels = 1024;                         // all parts of one file
-  std::uint64_t max_file_bytes = 1ull << 30;       // a pass file (uploads: limits.max_upload_bytes)
-  std::uint64_t max_read_bytes = 1ull << 30;       // estimated peak memory of reading one pass
+  std::uint64_t max_pixels = 7680ull * 4320;  // width * height (8K UHD)
+  int max_channels = 1024;                    // all parts of one file
+  std::uint64_t max_file_bytes = 1ull << 30;  // a pass file (uploads: limits.max_upload_bytes)
+  std::uint64_t max_read_bytes = 1ull << 30;  // estimated peak memory of reading one pass
 };
 
 struct WatchConfig {

@@ -584,8 +584,8 @@ Engine::ImageFile Engine::image(const std::string& id, long frame, const std::st
     throw ApiError(404, "not_found", "the published image is not a file");
   }
   try {
-    io::inspect_header(io::FdSource(fd.get(), static_cast<std::uint64_t>(st.st_size)),
-                       exr.string(), read_limits(config_.input, config_.input.max_file_bytes));
+    io::inspect_header(io::FdSource(fd.get(), static_cast<std::uint64_t>(st.st_size)), exr.string(),
+                       read_limits(config_.input, config_.input.max_file_bytes));
   } catch (const std::exception& e) {
     throw ApiError(500, "internal", e.what());
   }

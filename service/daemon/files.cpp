@@ -151,8 +151,8 @@ int walk_beneath(int root_fd, const fs::path& root_path, std::string_view relati
       }
       continue;
     }
-    const int f = last ? (flags | O_NOFOLLOW | O_CLOEXEC)
-                       : (O_PATH | O_DIRECTORY | O_NOFOLLOW | O_CLOEXEC);
+    const int f =
+        last ? (flags | O_NOFOLLOW | O_CLOEXEC) : (O_PATH | O_DIRECTORY | O_NOFOLLOW | O_CLOEXEC);
     int err = 0;
     const int fd = ::openat(cur(), name.c_str(), f, mode);
     if (fd >= 0) {

@@ -95,8 +95,8 @@ class Roots {
 
   // Opens `p` (absolute, lexically inside a root) beneath that root's descriptor at the moment
   // of use. On failure the descriptor is empty, `error` and `why` say why.
-  UniqueFd open(const std::filesystem::path& p, int flags, FileError& error,
-                std::string& why, Resolve how = Resolve::automatic) const;
+  UniqueFd open(const std::filesystem::path& p, int flags, FileError& error, std::string& why,
+                Resolve how = Resolve::automatic) const;
   // A directory, for *at() calls (O_PATH would not allow fsync or reading entries).
   UniqueFd open_dir(const std::filesystem::path& p, FileError& error, std::string& why) const;
   // Creates the missing directories of `p` one by one with mkdirat beneath its root (never

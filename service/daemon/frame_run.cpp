@@ -102,7 +102,8 @@ FrameRun::Outcome FrameRun::run(Input in) {
   ro.spp = spec.spp;
   ro.limits = in.limits;
   // A pass of another size than the frame's is refused from its header, before decoding.
-  if (in.has_state && rec.width > 0 && rec.height > 0) ro.frame_size = std::pair{rec.width, rec.height};
+  if (in.has_state && rec.width > 0 && rec.height > 0)
+    ro.frame_size = std::pair{rec.width, rec.height};
   std::vector<protocol::PassIdentity> accepted;
   std::uint64_t accepted_bytes = 0;
   for (const auto& p : batch) {

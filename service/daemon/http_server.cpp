@@ -111,23 +111,23 @@ class HttpServer::Session : public std::enable_shared_from_this<Session>, public
     }
     const auto length = header_parser_->content_length();
     if (length && *length > policy_.limit) {
-      return write(
-          server_.handler_.error(413, "payload_too_large",
-                                 "body of " + std::to_string(*length) +
-                                     " bytes exceeds the limit of " + std::to_string(policy_.limit)),
-          true);
+      return write(server_.handler_.error(413, "payload_too_large",
+                                          "body of " + std::to_string(*length) +
+                                              " bytes exceeds the limit of " +
+                                              std::to_string(policy_.limit)),
+                   true);
     }
     if (!policy_.spool.empty()) {
       file_parser_.emplace(std::move(*header_parser_));
       file_parser_->body_limit(policy_.limit);
       // The spool file: new (O_EXCL), never through a symlink, private until it is checked.
-      const int fd = ::open(policy_.spool.c_str(),
-                            O_RDWR | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0600);
+      const int fd =
+          ::open(policy_.spool.c_str(), O_RDWR | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0600);
       if (fd < 0) {
-        return write(server_.handler_.error(500, "internal",
-                                            "cannot store the upload: " +
-                                                std::string(std::strerror(errno))),
-                     true);
+        return write(
+            server_.handler_.error(500, "internal",
+                                   "cannot store the upload: " + std::string(std::strerror(errno))),
+            true);
       }
       spool_ = policy_.spool;
       beast::file f;
@@ -155,7 +155,9 @@ class HttpServer::Session : public std::enable_shared_from_this<Session>, public
     read_body();
   }
 
-  bool is_done() const { return file_parser_ ? file_parser_->is_done() : string_parser_->is_done(); }
+  bool is_done() const {
+    return file_parser_ ? file_parser_->is_done() : string_parser_->is_done();
+  }
 
   void read_body() {
     if (file_parser_) {
@@ -363,8 +365,8 @@ HttpServer::HttpServer(const Config& config, Handler& handler, EventHub& events,
   // The reserve is at most a quarter of all connections; streams never take it.
   auto& l = config_.limits;
   l.reserved_connections = std::clamp(l.reserved_connections, 0, l.max_connections / 4);
-  l.max_sse_streams = std::max(0, std::min(l.max_sse_streams,
-                                           l.max_connections - l.reserved_connections));
+  l.max_sse_streams =
+      std::max(0, std::min(l.max_sse_streams, l.max_connections - l.reserved_connections));
 }
 
 HttpServer::~HttpServer() {

@@ -56,8 +56,8 @@ class Handler {
   virtual std::optional<Response> before_body(const http::request_header<>& header,
                                               BodyPolicy& policy) = 0;
   struct Incoming {
-    Request request;                     // the body is empty when it was spooled
-    std::filesystem::path body_file;     // the spooled body, if any
+    Request request;                  // the body is empty when it was spooled
+    std::filesystem::path body_file;  // the spooled body, if any
     std::uint64_t body_bytes = 0;
   };
   struct Reply {

@@ -47,7 +47,8 @@ std::optional<PassPattern> PassPattern::parse(std::string_view pattern, std::str
     }
     Segment tokens;
     auto literal = [&](char c) {
-      if (tokens.empty() || tokens.back().kind != Kind::literal) tokens.push_back({Kind::literal, {}});
+      if (tokens.empty() || tokens.back().kind != Kind::literal)
+        tokens.push_back({Kind::literal, {}});
       tokens.back().text += c;
     };
     for (std::size_t i = 0; i < seg.size();) {

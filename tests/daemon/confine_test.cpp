@@ -1,10 +1,10 @@
 // Confinement at the moment of use (service/daemon/files.hpp): opens beneath a held root
 // descriptor, with the kernel's openat2 and with the O_NOFOLLOW walk, against symlinks and
 // renames swapped in after a path was accepted (issue 11, class 2).
-#include <catch2/catch.hpp>
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <catch2/catch.hpp>
 
 #include <filesystem>
 #include <fstream>
@@ -113,7 +113,8 @@ TEST_CASE("a watch directory swapped for a symlink after it was accepted", "[con
   fs::rename(t.root / "w_old", t.root / "w");
   fs::rename(t.root / "w" / "pass_01", t.base / "moved_away");
   fs::create_symlink(t.outside / "pass_01", t.root / "w" / "pass_01");
-  for (Resolve how : kModes) CHECK(read(roots, t.root / "w" / "pass_01" / "a.exr", how) == "E:escape");
+  for (Resolve how : kModes)
+    CHECK(read(roots, t.root / "w" / "pass_01" / "a.exr", how) == "E:escape");
 }
 
 TEST_CASE("a watched subfolder moved out of the root is not read through its old path",
@@ -180,15 +181,15 @@ TEST_CASE("paths outside every root are refused without touching them", "[confin
   CHECK_FALSE(roots.open(fs::path(t.root.string() + "x") / "f", O_RDONLY, err, why));
 }
 
-TEST_CASE("new files are created beneath the root without following a planted link",
-          "[confine]") {
+TEST_CASE("new files are created beneath the root without following a planted link", "[confine]") {
   Tree t;
   const Roots roots({t.root.string()});
   fs::create_symlink(t.outside / "planted.exr", t.root / "w" / "out.exr");
   for (Resolve how : kModes) {
     FileError err = FileError::none;
     std::string why;
-    const auto fd = roots.open(t.root / "w" / "out.exr", O_WRONLY | O_CREAT | O_EXCL, err, why, how);
+    const auto fd =
+        roots.open(t.root / "w" / "out.exr", O_WRONLY | O_CREAT | O_EXCL, err, why, how);
     CHECK_FALSE(fd);
     CHECK_FALSE(fs::exists(t.outside / "planted.exr"));
   }

@@ -27,7 +27,7 @@ TEST_CASE("watch patterns match what docs/api.md says", "[pattern]") {
   CHECK(m(blender, "pass_07/beauty_0012.exr.tmp") == "-");
   CHECK(m(blender, "pass_07/sub/beauty_0012.exr") == "-");  // depth is fixed
   CHECK(m(blender, "beauty_0012.exr") == "-");
-  CHECK(m(blender, "pass_/beauty_0012.exr") == "-");  // {pass} is one or more
+  CHECK(m(blender, "pass_/beauty_0012.exr") == "-");     // {pass} is one or more
   CHECK(m(blender, "pass_a.b/beauty_0012.exr") == "-");  // '.' is not a pass character
   CHECK(blender.depth() == 1);
 
@@ -52,7 +52,9 @@ TEST_CASE("watch patterns match what docs/api.md says", "[pattern]") {
   CHECK(m(digits, "a_999999999.exr") == "999999999|a");
   CHECK(m(digits, "a_1000000000.exr") == "-");  // more than 9 digits
   CHECK(m(digits, "a_0000000000042.exr") == "42|a");
-  CHECK(m(digits, "a_\xff" "1.exr") == "-");
+  CHECK(m(digits,
+          "a_\xff"
+          "1.exr") == "-");
 }
 
 TEST_CASE("bad patterns are refused with a reason", "[pattern]") {

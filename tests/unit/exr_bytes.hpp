@@ -15,13 +15,13 @@ struct ExrAttribute {
 };
 
 struct ExrSpec {
-  int width = 4, height = 3;          // data and display window (0,0)-(w-1,h-1)
-  int declared_width = 0;             // > 0: the windows declare this size instead
+  int width = 4, height = 3;  // data and display window (0,0)-(w-1,h-1)
+  int declared_width = 0;     // > 0: the windows declare this size instead
   int declared_height = 0;
   std::vector<std::string> channels = {"B", "G", "R"};  // written in this order (EXR sorts them)
-  std::vector<ExrAttribute> extra;    // appended after the required attributes
-  bool pixels = true;                 // write the offset table and uncompressed float scanlines
-  float value = 0.25f;                // every sample
+  std::vector<ExrAttribute> extra;                      // appended after the required attributes
+  bool pixels = true;   // write the offset table and uncompressed float scanlines
+  float value = 0.25f;  // every sample
 };
 
 // An uncompressed single-part scanline EXR with FLOAT channels.

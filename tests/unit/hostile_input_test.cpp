@@ -3,8 +3,8 @@
 // refused (or reported) with a clear InputError, as printable text, before anything large is
 // allocated; nothing here may crash or throw anything but InputError.
 #include <OpenImageIO/imageio.h>
-#include <catch2/catch.hpp>
 #include <sys/resource.h>
+#include <catch2/catch.hpp>
 
 #include <filesystem>
 #include <nlohmann/json.hpp>
@@ -148,7 +148,8 @@ TEST_CASE("a sample count that is not a finite count is refused", "[io][hostile]
 TEST_CASE("a header attribute declaring 2^31 bytes is refused from the file size",
           "[io][hostile]") {
   test::TempDir dir;
-  for (std::int64_t declared : {std::int64_t{0x7fffffff}, std::int64_t{1} << 30, std::int64_t{5000}}) {
+  for (std::int64_t declared :
+       {std::int64_t{0x7fffffff}, std::int64_t{1} << 30, std::int64_t{5000}}) {
     test::ExrSpec spec;
     test::ExrAttribute big{"bomb", "opaqueblob", {1, 2, 3, 4}, declared};
     spec.extra = {big};

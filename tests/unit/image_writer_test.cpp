@@ -1,9 +1,9 @@
 // Atomic image writes relative to a held directory descriptor (io/image_writer.hpp): the file
 // lands in the directory that was opened, a symlink planted at its name is replaced rather than
 // written through, and OIIO writes only through the descriptor.
-#include <catch2/catch.hpp>
 #include <fcntl.h>
 #include <unistd.h>
+#include <catch2/catch.hpp>
 
 #include <filesystem>
 #include <fstream>

@@ -2,10 +2,10 @@
 // header walks of hostile EXR and Radiance headers, the per-read memory budget, the frame size
 // checked from the header, reads from memory that never touch the file system, printable text.
 #include <OpenImageIO/imageio.h>
-#include <catch2/catch.hpp>
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <catch2/catch.hpp>
 
 #include <filesystem>
 #include <fstream>
@@ -49,12 +49,13 @@ TEST_CASE("printable text: valid UTF-8 passes, everything else is escaped", "[io
   CHECK(io::printable("ViewLayer.Combined.R") == "ViewLayer.Combined.R");
   CHECK(io::printable("caf\xc3\xa9 \xe2\x82\xac \xf0\x9f\x98\x80") ==
         "caf\xc3\xa9 \xe2\x82\xac \xf0\x9f\x98\x80");
-  CHECK(io::printable("a\xff" "b") == "a\\xffb");
+  CHECK(io::printable("a\xff"
+                      "b") == "a\\xffb");
   CHECK(io::printable("\x1b[2J\n") == "\\x1b[2J\\x0a");
-  CHECK(io::printable("\xc0\xaf") == "\\xc0\\xaf");              // overlong '/'
-  CHECK(io::printable("\xed\xa0\x80") == "\\xed\\xa0\\x80");     // a UTF-16 surrogate
+  CHECK(io::printable("\xc0\xaf") == "\\xc0\\xaf");                    // overlong '/'
+  CHECK(io::printable("\xed\xa0\x80") == "\\xed\\xa0\\x80");           // a UTF-16 surrogate
   CHECK(io::printable("\xf4\x90\x80\x80") == "\\xf4\\x90\\x80\\x80");  // above U+10FFFF
-  CHECK(io::printable("\xe2\x82") == "\\xe2\\x82");              // cut short
+  CHECK(io::printable("\xe2\x82") == "\\xe2\\x82");                    // cut short
   CHECK(io::printable(std::string("a\0b", 3)) == "a\\x00b");
   CHECK(io::is_valid_utf8("\xc3\xa9"));
   CHECK_FALSE(io::is_valid_utf8("\xc3"));
@@ -169,8 +170,7 @@ TEST_CASE("Radiance header walk: bounded size and pixels", "[io][format]") {
   CHECK(inspect_error(text(endless)).kind() == InputErrorKind::unreadable);
 }
 
-TEST_CASE("reads from memory match reads from the file and never open the name",
-          "[io][memory]") {
+TEST_CASE("reads from memory match reads from the file and never open the name", "[io][memory]") {
   for (const char* f : {"renders/cornell/pass_00.exr", "renders/povray/pass_00.hdr"}) {
     io::ReadOptions o;
     o.spp = 1;
@@ -225,8 +225,7 @@ TEST_CASE("the per-read memory budget refuses a read before decoding", "[io][bud
   CHECK(io::probe_pass(f, o).read_bytes < info.read_bytes);
 }
 
-TEST_CASE("a pass of another size than the frame's is refused from its header",
-          "[io][budget]") {
+TEST_CASE("a pass of another size than the frame's is refused from its header", "[io][budget]") {
   io::ReadOptions o;
   o.frame_size = std::pair{64, 64};
   try {

@@ -30,10 +30,10 @@ std::string describe_magic(std::span<const std::uint8_t> head);
 // Bounds applied to one read, before anything is allocated from what the file declares.
 // The defaults are the CLI's (generous); the daemon sets its own from its config (`input.*`).
 struct ReadLimits {
-  std::uint64_t max_file_bytes = std::uint64_t{4} << 30;  // the file itself
-  std::uint64_t max_pixels = std::uint64_t{1} << 27;      // width * height of any part
-  int max_channels = 1024;                                // all parts together
-  int max_parts = 64;                                     // EXR multi-part files
+  std::uint64_t max_file_bytes = std::uint64_t{4} << 30;    // the file itself
+  std::uint64_t max_pixels = std::uint64_t{1} << 27;        // width * height of any part
+  int max_channels = 1024;                                  // all parts together
+  int max_parts = 64;                                       // EXR multi-part files
   std::uint64_t max_memory_bytes = std::uint64_t{8} << 30;  // estimated peak of one read
 };
 
