@@ -240,6 +240,14 @@ Roots::Roots(const std::vector<std::string>& roots) {
   }
 }
 
+bool Roots::locate(const fs::path& p, std::size_t& root, std::string& relative, FileError& error,
+                   std::string& why) const {
+  if (locate(p, root, relative)) return true;
+  error = FileError::escape;
+  why = p.string() + " is not inside the allowed roots";
+  return false;
+}
+
 bool Roots::locate(const fs::path& p, std::size_t& root, std::string& relative) const {
   if (!p.is_absolute()) return false;
   std::size_t best_len = 0;
@@ -271,11 +279,7 @@ UniqueFd Roots::open(const fs::path& p, int flags, FileError& error, std::string
                      Resolve how) const {
   std::size_t root = 0;
   std::string rel;
-  if (!locate(p, root, rel)) {
-    error = FileError::escape;
-    why = p.string() + " is not inside the allowed roots";
-    return {};
-  }
+  if (!locate(p, root, rel, error, why)) return {};
   const int fd = open_beneath(fds_[root]->get(), roots_[root], rel, flags, 0644, how);
   if (fd >= 0) {
     error = FileError::none;
@@ -310,11 +314,7 @@ UniqueFd Roots::open_dir(const fs::path& p, FileError& error, std::string& why) 
 UniqueFd Roots::make_dirs(const fs::path& p, FileError& error, std::string& why) const {
   std::size_t root = 0;
   std::string rel;
-  if (!locate(p, root, rel)) {
-    error = FileError::escape;
-    why = p.string() + " is not inside the allowed roots";
-    return {};
-  }
+  if (!locate(p, root, rel, error, why)) return {};
   const auto parts = components(rel);
   UniqueFd dir(::openat(fds_[root]->get(), ".", O_RDONLY | O_DIRECTORY | O_CLOEXEC));
   std::string prefix;

@@ -110,6 +110,9 @@ class Roots {
  private:
   // The root lexically containing `p` and the path below it.
   bool locate(const std::filesystem::path& p, std::size_t& root, std::string& relative) const;
+  // The same, setting `error` (escape) and `why` when `p` is in no root.
+  bool locate(const std::filesystem::path& p, std::size_t& root, std::string& relative,
+              FileError& error, std::string& why) const;
   std::vector<std::filesystem::path> roots_;
   std::vector<std::shared_ptr<UniqueFd>> fds_;
 };

@@ -5,27 +5,16 @@ event, leave the daemon serving (/livez within a generous deadline), bounded in 
 roots, and alive across restarts."""
 import json
 import os
-import shutil
-import signal
 import socket
 import sys
 import time
 import unittest
 
 sys.path.insert(0, os.path.dirname(__file__))
-from harness import CORNELL, FAST_WATCH, Daemon, SseClient, TempRoot, wait_until  # noqa: E402
-import hostile_files as hf  # noqa: E402
+from harness import CORNELL, FAST_WATCH, Daemon, SseClient, TempRoot  # noqa: E402
+import hostile_support as hf  # noqa: E402
+from hostile_support import LIVEZ_DEADLINE, vm_hwm_mib  # noqa: E402
 
-LIVEZ_DEADLINE = 3.0  # seconds; generous: a healthy daemon answers in milliseconds
-
-
-def vm_hwm_mib(d):
-    """Peak resident memory of the daemon process (MiB)."""
-    with open("/proc/%d/status" % d.proc.pid) as f:
-        for line in f:
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    return 0.0
 
 
 def livez_ok(d, timeout=LIVEZ_DEADLINE):
@@ -68,11 +57,18 @@ def error_events(sse, job, count, timeout=30.0):
     return got
 
 
-class HostileFilesTest(unittest.TestCase):
+class DaemonTest(unittest.TestCase):
+    """One daemon per test, in its own temp root; `config` is its config."""
+    config = None
+
     def setUp(self):
         self.tmp = TempRoot()
         self.root = self.tmp.__enter__()
-        self.d = Daemon(self.root).start()
+        self.prepare()
+        self.d = Daemon(self.root, config=self.config).start()
+
+    def prepare(self):
+        pass
 
     def tearDown(self):
         try:
@@ -82,6 +78,9 @@ class HostileFilesTest(unittest.TestCase):
             if sys.exc_info()[0]:
                 print(self.d.read_log(), file=sys.stderr)
             self.tmp.__exit__(None, None, None)
+
+
+class HostileFilesTest(DaemonTest):
 
     def test_non_utf8_channel_names_and_header_values(self):
         """Class 1: a few hundred bytes that are not UTF-8 must give an error event and a
@@ -220,29 +219,17 @@ class HostileFilesTest(unittest.TestCase):
         self.assertEqual(d.json("GET", "/api/v1/jobs/" + other)[0], 200)
 
 
-class ConfinementTest(unittest.TestCase):
+class ConfinementTest(DaemonTest):
     """Class 2: paths are confined when used, not only when a job is created."""
+    config = {"watch": dict(FAST_WATCH, settle_ms=1500)}
 
-    def setUp(self):
-        self.tmp = TempRoot()
-        self.root = self.tmp.__enter__()
+    def prepare(self):
         self.outside = os.path.join(self.root, "outside")
         os.makedirs(os.path.join(self.outside, "pass_01"))
         # The secret differs in size from every pass placed inside: reading it would show.
         self.secret = hf.exr(width=6, height=5, value=9.0)
         hf.write(os.path.join(self.outside, "secret.exr"), self.secret)
         hf.write(os.path.join(self.outside, "pass_01", "beauty_0001.exr"), self.secret)
-        cfg = {"watch": dict(FAST_WATCH, settle_ms=1500)}
-        self.d = Daemon(self.root, config=cfg).start()
-
-    def tearDown(self):
-        try:
-            if self.d.proc:
-                self.assertEqual(self.d.stop(timeout=20), 0)
-        finally:
-            if sys.exc_info()[0]:
-                print(self.d.read_log(), file=sys.stderr)
-            self.tmp.__exit__(None, None, None)
 
     def assert_nothing_from_outside(self, jid):
         for n, f in self.d.frames(jid).items():

@@ -5,9 +5,7 @@ no upload body in memory, stop on SIGTERM in bounded time, and keep connections 
 and authenticated requests."""
 import json
 import os
-import signal
 import socket
-import struct
 import sys
 import threading
 import time
@@ -15,18 +13,10 @@ import unittest
 
 sys.path.insert(0, os.path.dirname(__file__))
 from harness import Daemon, TempRoot  # noqa: E402
-import hostile_files as hf  # noqa: E402
+import hostile_support as hf  # noqa: E402
+from hostile_support import LIVEZ_DEADLINE, vm_hwm_mib  # noqa: E402
 
 TOKEN = "hostile-net-token-0123456789"
-LIVEZ_DEADLINE = 2.0  # seconds; generous: a healthy daemon answers in milliseconds
-
-
-def vm_hwm_mib(d):
-    with open("/proc/%d/status" % d.proc.pid) as f:
-        for line in f:
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    return 0.0
 
 
 def raw_request(d, data, source=None, timeout=10.0):

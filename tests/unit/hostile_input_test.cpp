@@ -38,6 +38,17 @@ InputError read_error(const std::string& path, const io::ReadOptions& o = {}) {
   throw std::logic_error("unreachable");
 }
 
+// An 8-bit RGB image in whatever format OIIO picks for `path`'s extension (PNG, TIFF, JPEG).
+void write_8bit(const std::string& path, int size, unsigned char value) {
+  auto out = OIIO::ImageOutput::create(path);
+  REQUIRE(out);
+  OIIO::ImageSpec spec(size, size, 3, OIIO::TypeDesc::UINT8);
+  std::vector<unsigned char> px(static_cast<std::size_t>(size * size * 3), value);
+  REQUIRE(out->open(path, spec));
+  REQUIRE(out->write_image(OIIO::TypeDesc::UINT8, px.data()));
+  REQUIRE(out->close());
+}
+
 // What the daemon does with a reader error: put it in a JSON event. It must not throw.
 void require_json_safe(const std::string& text) {
   REQUIRE_NOTHROW(nlohmann::json({{"message", text}}).dump());
@@ -48,15 +59,7 @@ void require_json_safe(const std::string& text) {
 TEST_CASE("an 8-bit PNG named .exr is refused by its magic bytes", "[io][hostile]") {
   test::TempDir dir;
   const std::string png = dir.file("frame.png");
-  {
-    auto out = OIIO::ImageOutput::create(png);
-    REQUIRE(out);
-    OIIO::ImageSpec spec(8, 8, 3, OIIO::TypeDesc::UINT8);
-    std::vector<unsigned char> px(8 * 8 * 3, 200);
-    REQUIRE(out->open(png, spec));
-    REQUIRE(out->write_image(OIIO::TypeDesc::UINT8, px.data()));
-    REQUIRE(out->close());
-  }
+  write_8bit(png, 8, 200);
   const std::string disguised = dir.file("pass_00.exr");
   std::filesystem::rename(png, disguised);
   for (auto r : {io::Renderer::automatic, io::Renderer::povray, io::Renderer::generic}) {
@@ -89,13 +92,7 @@ TEST_CASE("TIFF, JPEG and random bytes are not passes", "[io][hostile]") {
   test::TempDir dir;
   for (const char* ext : {"tif", "jpg"}) {
     const std::string f = dir.file(std::string("img.") + ext);
-    auto out = OIIO::ImageOutput::create(f);
-    REQUIRE(out);
-    OIIO::ImageSpec spec(4, 4, 3, OIIO::TypeDesc::UINT8);
-    std::vector<unsigned char> px(4 * 4 * 3, 10);
-    REQUIRE(out->open(f, spec));
-    REQUIRE(out->write_image(OIIO::TypeDesc::UINT8, px.data()));
-    REQUIRE(out->close());
+    write_8bit(f, 4, 10);
     const std::string as_exr = dir.file(std::string("img_") + ext + ".exr");
     std::filesystem::rename(f, as_exr);
     CHECK(read_error(as_exr).kind() == InputErrorKind::unsupported_format);

@@ -28,19 +28,26 @@ std::string slurp(const fs::path& p) {
   return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
 }
 
+// dir/out opened (the descriptor returned), then moved to dir/held and replaced by a symlink to
+// dir/outside: what a symlink swapped in after the daemon opened its output directory looks like.
+int open_then_swap(const test::TempDir& dir) {
+  const fs::path out = dir.path() / "out";
+  fs::create_directories(out);
+  fs::create_directories(dir.path() / "outside");
+  const int fd = ::open(out.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  REQUIRE(fd >= 0);
+  fs::rename(out, dir.path() / "held");
+  fs::create_symlink(dir.path() / "outside", out);
+  return fd;
+}
+
 }  // namespace
 
 TEST_CASE("write_image_at writes into the held directory, not where its path now leads",
           "[io][writer]") {
   test::TempDir dir;
-  const fs::path out = dir.path() / "out", outside = dir.path() / "outside";
-  fs::create_directories(out);
-  fs::create_directories(outside);
-  const int fd = ::open(out.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  REQUIRE(fd >= 0);
-  // After the directory was opened, its path is swapped for a symlink to the outside.
-  fs::rename(out, dir.path() / "out_real");
-  fs::create_symlink(outside, out);
+  const fs::path outside = dir.path() / "outside";
+  const int fd = open_then_swap(dir);
   const Image img(5, 4, 3, 0.5f);
   io::write_image_at(fd, "frame_0001.exr", 5, 4, rgb(img));
   io::WriteOptions png;
@@ -48,10 +55,10 @@ TEST_CASE("write_image_at writes into the held directory, not where its path now
   io::write_image_at(fd, "frame_0001.png", 5, 4, rgb(img), png);
   ::close(fd);
   CHECK(fs::is_empty(outside));
-  CHECK(io::read_rgb((dir.path() / "out_real" / "frame_0001.exr").string()).at(2, 2, 1) == 0.5f);
-  CHECK(slurp(dir.path() / "out_real" / "frame_0001.png").starts_with("\x89PNG"));
+  CHECK(io::read_rgb((dir.path() / "held" / "frame_0001.exr").string()).at(2, 2, 1) == 0.5f);
+  CHECK(slurp(dir.path() / "held" / "frame_0001.png").starts_with("\x89PNG"));
   // No temp file left behind, and nothing created in the working directory by name.
-  for (const auto& e : fs::directory_iterator(dir.path() / "out_real")) {
+  for (const auto& e : fs::directory_iterator(dir.path() / "held")) {
     CHECK(e.path().filename().string().front() != '.');
   }
 }
@@ -88,12 +95,7 @@ TEST_CASE("an OutputDirectory binding routes path-based writes through its descr
           "[io][writer]") {
   test::TempDir dir;
   const fs::path out = dir.path() / "out", outside = dir.path() / "outside";
-  fs::create_directories(out);
-  fs::create_directories(outside);
-  const int fd = ::open(out.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  REQUIRE(fd >= 0);
-  fs::rename(out, dir.path() / "held");
-  fs::create_symlink(outside, out);
+  const int fd = open_then_swap(dir);
   const Image img(2, 2, 3, 0.25f);
   {
     const io::OutputDirectory bound(out.string() + "/", fd);

@@ -1,7 +1,19 @@
-"""Hand-made image files for the hostile-input service tests (standard library only): OpenEXR
-files byte by byte (OpenEXR "File Layout"), with headers no writer would produce, and small PNGs."""
+"""Helpers of the hostile-input service tests (standard library only): hand-made image files
+(OpenEXR byte by byte after OpenEXR's "File Layout", with headers no writer would produce; small
+PNG and Radiance files) and probes of the daemon process."""
 import struct
 import zlib
+
+LIVEZ_DEADLINE = 2.0  # seconds; generous: a healthy daemon answers in milliseconds
+
+
+def vm_hwm_mib(d):
+    """Peak resident memory of the daemon process so far (MiB)."""
+    with open("/proc/%d/status" % d.proc.pid) as f:
+        for line in f:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    return 0.0
 
 
 def _attr(name, typ, value, declared=None):
