@@ -6,6 +6,9 @@
 #include <cmath>
 #include <ctime>
 
+#include "proden/protocol/pipeline_spec.hpp"
+#include "proden/protocol/publish.hpp"
+
 namespace proden::protocol {
 
 using nlohmann::json;
@@ -52,7 +55,18 @@ void check_pattern(const std::string& p) {
   if (p.find('\0') != std::string::npos) bad("watch.pattern", "contains NUL");
 }
 
+// The job's pipeline object as the client gave it, denoiser and mixer defaulting to "auto".
+json pipeline_json(const PipelineSpec& p) {
+  json out = {{"denoiser", "auto"}, {"mixer", "auto"}};
+  out.update(p.given);
+  return out;
+}
+
 }  // namespace
+
+PipelineSpec PipelineSpec::from_json(const json& given) {
+  return {given, parse_pipeline_options(given)};
+}
 
 json ApiError::to_json() const {
   return {{"error", {{"code", code_}, {"message", what()}}}};
@@ -92,13 +106,11 @@ JobSpec parse_job_spec(const json& body) {
   if (body.contains("pipeline") && !body["pipeline"].is_null()) {
     const json& p = body["pipeline"];
     if (!p.is_object()) bad("pipeline", "must be an object");
-    j.pipeline.denoiser = get_string(p, "denoiser", "pipeline.denoiser", false, "auto");
-    j.pipeline.mixer = get_string(p, "mixer", "pipeline.mixer", false, "auto");
-    const auto opt_char = [](unsigned char c) {
-      return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
-    };
-    if (!charset(j.pipeline.denoiser, 32, opt_char)) bad("pipeline.denoiser", "bad value");
-    if (!charset(j.pipeline.mixer, 32, opt_char)) bad("pipeline.mixer", "bad value");
+    try {
+      j.pipeline = PipelineSpec::from_json(p);
+    } catch (const PipelineError& e) {
+      bad("pipeline." + e.key(), e.message());
+    }
   }
   if (!body.contains("output") || !body["output"].is_object()) bad("output", "required object");
   const json& o = body["output"];
@@ -128,7 +140,7 @@ json to_json(const JobSpec& j) {
   json out = {{"id", j.id},
               {"name", j.name},
               {"renderer", j.renderer},
-              {"pipeline", {{"denoiser", j.pipeline.denoiser}, {"mixer", j.pipeline.mixer}}},
+              {"pipeline", pipeline_json(j.pipeline)},
               {"output",
                {{"dir", j.output.dir},
                 {"formats", j.output.png ? json::array({"exr", "png"}) : json::array({"exr"})}}},
@@ -166,15 +178,11 @@ PassIdentity pass_identity_from_json(const json& j) {
 }
 
 json to_json(const FrameStatus& f, bool detail) {
-  json j = {{"job", f.job},
-            {"frame", f.frame},
-            {"passes", f.passes},
-            {"spp", f.spp},
-            {"version", f.version},
-            {"updated", f.updated.empty() ? json() : json(f.updated)},
-            {"estimated_mse", f.estimated_mse},
-            {"estimated_error", {{"mse", f.estimated_mse}, {"source", f.estimated_mse_source}}},
+  json j = {{"job", f.job},         {"frame", f.frame},
+            {"passes", f.passes},   {"spp", f.spp},
+            {"version", f.version}, {"updated", f.updated.empty() ? json() : json(f.updated)},
             {"pending", f.pending}};
+  put_estimated_error(j, f.estimated_mse, f.estimated_mse_source);
   if (!detail) return j;
   j["width"] = f.width;
   j["height"] = f.height;

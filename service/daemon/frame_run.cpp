@@ -16,10 +16,6 @@
 #include "proden/io/pass_reader.hpp"
 #include "proden/protocol/json.hpp"
 
-#ifndef PRODEN_VERSION
-#define PRODEN_VERSION "dev"
-#endif
-
 namespace proden::daemon {
 
 namespace fs = std::filesystem;
@@ -134,9 +130,9 @@ FrameRun::Outcome FrameRun::run(Input in) {
   // 3. Commit (persist), then publish.
   try {
     auto t0 = Clock::now();
-    const FrameEstimate est = acc->estimate({.halves = false, .features = true});
+    const FrameEstimate est = acc->estimate(FrameProcessor::estimate_options(spec.pipeline));
     metrics_.observe("proden_stage_duration_seconds", "estimate", seconds_since(t0));
-    const ProcessedFrame out = FrameProcessor::process(est, spec.pipeline);
+    const ProcessedFrame out = FrameProcessor::process(*acc, est, spec.pipeline);
     for (const auto& [stage, s] : out.stage_seconds) {
       metrics_.observe("proden_stage_duration_seconds", stage, s);
     }
@@ -183,16 +179,8 @@ FrameRun::Outcome FrameRun::run(Input in) {
       out_dir = UniqueFd(::open(spec.output.dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
     }
     const io::OutputDirectory bound(spec.output.dir, out_dir.get());
-    const std::vector<std::pair<std::string, std::string>> attrs = {
-        {"Software", std::string("proden ") + PRODEN_VERSION},
-        {"proden:passes", std::to_string(rec.passes)},
-        {"proden:spp", std::to_string(rec.spp)},
-        {"proden:inputs", rec.inputs},
-        {"proden:variance_source", rec.variance_source},
-        {"proden:low_confidence", rec.low_confidence ? "true" : "false"},
-    };
     const auto outputs =
-        FrameProcessor::publish(out, output_base(spec, frame_no).string(), spec.output.png, attrs);
+        FrameProcessor::publish(out, output_base(spec, frame_no).string(), spec.output.png);
     store_.save_published(job_id, frame_no, rec.version);
     metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
     hooks_.published(rec.version, outputs);
