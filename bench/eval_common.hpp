@@ -36,11 +36,47 @@ inline std::vector<std::string> exr_files(const std::filesystem::path& dir,
   return out;
 }
 
-inline FrameAccumulator accumulate(const std::vector<std::string>& files, bool features) {
+// Adds `src` (spp n) into the running chunk `dst` (spp m): spp-weighted means, and the renderer
+// variance of the merged mean, (m^2 v_dst + n^2 v_src) / (m + n)^2.
+inline void merge_into(Pass& dst, const Pass& src) {
+  if (dst.colour.empty()) {
+    dst = src;
+    return;
+  }
+  const double m = dst.spp, n = src.spp, w = m + n;
+  auto mean = [&](Image& a, const Image& b) {
+    for (std::size_t i = 0; i < a.data().size(); ++i)
+      a.data()[i] = static_cast<float>((m * a.data()[i] + n * b.data()[i]) / w);
+  };
+  mean(dst.colour, src.colour);
+  if (!dst.albedo.empty()) mean(dst.albedo, src.albedo);
+  if (!dst.normal.empty()) mean(dst.normal, src.normal);
+  if (!dst.depth.empty()) mean(dst.depth, src.depth);
+  for (std::size_t i = 0; i < dst.variance.data().size(); ++i) {
+    dst.variance.data()[i] = static_cast<float>(
+        (m * m * dst.variance.data()[i] + n * n * src.variance.data()[i]) / (w * w));
+  }
+  dst.spp = w;
+}
+
+// The level's passes as given, or (chunks > 0) merged into `chunks` contiguous groups of nearly
+// equal size, the way a farm renders a frame as a few big chunks: same samples, fewer passes.
+inline FrameAccumulator accumulate(const std::vector<std::string>& files, bool features,
+                                   int chunks = 0) {
   io::ReadOptions o;
   o.features = features;
   FrameAccumulator f;
-  for (const auto& p : files) f.add(io::read_pass(p, o), p);
+  if (chunks <= 0 || chunks >= static_cast<int>(files.size())) {
+    for (const auto& p : files) f.add(io::read_pass(p, o), p);
+    return f;
+  }
+  const std::size_t n = files.size(), k = static_cast<std::size_t>(chunks);
+  for (std::size_t g = 0; g < k; ++g) {
+    Pass chunk;
+    for (std::size_t i = g * n / k; i < (g + 1) * n / k; ++i)
+      merge_into(chunk, io::read_pass(files[i], o));
+    f.add(chunk, "chunk" + std::to_string(g));
+  }
   return f;
 }
 

@@ -3,7 +3,8 @@
 // reference (the mean of reference passes, with their own variance subtracted from the MSE).
 //
 // Layouts: DIR/spp<L>/pass_*.exr with DIR/reference/pass_*.exr (bench/render_eval_set.sh), or
-// DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level.
+// DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level. `--passes N` merges
+// each level's passes into N chunks of the same total spp (few-pass frames, docs/pipeline.md).
 //
 // Also per level: the pipeline's own error estimates (no reference): mean Var[x] for the render,
 // mean SURE for the denoised image, and for the result PipelineResult::estimated_error (what
@@ -78,7 +79,7 @@ int main(int argc, char** argv) {
   std::string dir;
   std::string levels_csv;
   bool as_json = false, no_features = false;
-  int threads = 0;
+  int threads = 0, chunks = 0;
   PipelineOptions po;
   std::string rule = "stein", divergence = "auto";
   app.add_option("--scene", dir, "Scene directory")->required();
@@ -86,7 +87,12 @@ int main(int argc, char** argv) {
   app.add_flag("--json", as_json, "JSON lines output");
   app.add_flag("--no-features", no_features, "Colour only");
   app.add_option("--threads", threads, "Threads (0 = all)");
+  app.add_option("--passes", chunks,
+                 "Merge each level's passes into this many chunks (same spp; 0 = as rendered)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--mixer-radius", po.closed_form.radius);
+  app.add_option("--mixer-wide-radius", po.closed_form.wide_radius, "0: one window");
+  app.add_option("--garrote", po.closed_form.garrote);
   app.add_option("--pool", po.variance_pool_radius);
   app.add_option("--t0", po.ttest.t0);
   bool no_dof = false;
@@ -160,7 +166,7 @@ int main(int argc, char** argv) {
   }
   for (const auto& [level, files] : levels) {
     const auto t0 = std::chrono::steady_clock::now();
-    const FrameAccumulator f = accumulate(files, !no_features);
+    const FrameAccumulator f = accumulate(files, !no_features, chunks);
     const FrameEstimate est = f.estimate(pipeline.estimate_options());
     const auto t1 = std::chrono::steady_clock::now();
     const PipelineResult r = pipeline.execute(est);

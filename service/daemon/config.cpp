@@ -33,6 +33,9 @@ void check_keys(const json& j, std::initializer_list<const char*> keys, const st
   }
 }
 
+void apply_hostile_input_json(Config& c, const json& j);
+json hostile_input_json(const Config& c);
+
 }  // namespace
 
 namespace {
@@ -62,6 +65,15 @@ void each_number(C& c, F&& f) {
   f("watch.tick_ms", c.watch.tick_ms, 1.0, 60000.0);
   f("watch.max_attempts", c.watch.max_attempts, 1.0, 1000.0);
   f("watch.max_depth", c.watch.max_depth, 0.0, 64.0);
+  // hostile input and clients (issue 11; docs/api.md "Security and limits")
+  f("handler_threads", c.handler_threads, 1.0, 256.0);
+  f("limits.max_sse_streams", c.limits.max_sse_streams, 1.0, 1000000.0);
+  f("limits.max_sse_per_client", c.limits.max_sse_per_client, 1.0, 1000000.0);
+  f("limits.reserved_connections", c.limits.reserved_connections, 0.0, 1000000.0);
+  f("input.max_pixels", c.input.max_pixels, 1.0, 1099511627776.0);
+  f("input.max_channels", c.input.max_channels, 1.0, 65536.0);
+  f("input.max_file_bytes", c.input.max_file_bytes, 1.0, 70368744177664.0);
+  f("input.max_read_bytes", c.input.max_read_bytes, 1.0, 70368744177664.0);
 }
 
 [[noreturn]] void out_of_range(const std::string& key, double lo, double hi) {
@@ -91,7 +103,7 @@ void apply_json(Config& c, const json& j) {
       j,
       {"bind", "port", "state_dir", "allowed_roots", "token_file", "open_reads", "dashboard",
        "worker_threads", "io_threads", "max_resident_frames", "pipeline_threads", "log_level",
-       "limits", "watch"},
+       "limits", "watch", /* hostile input (issue 11): */ "input", "handler_threads"},
       "");
   take(j, "bind", c.bind, "");
   take(j, "state_dir", c.state_dir, "");
@@ -104,7 +116,9 @@ void apply_json(Config& c, const json& j) {
     check_keys(j["limits"],
                {"max_body_bytes", "max_upload_bytes", "max_header_bytes", "request_timeout_ms",
                 "upload_timeout_ms", "idle_timeout_ms", "max_connections", "sse_history",
-                "sse_keepalive_ms", "sse_queue_limit"},
+                "sse_keepalive_ms", "sse_queue_limit",
+                /* hostile clients (issue 11): */ "max_sse_streams", "max_sse_per_client",
+                "reserved_connections"},
                "limits.");
   }
   if (j.contains("watch")) {
@@ -123,6 +137,7 @@ void apply_json(Config& c, const json& j) {
     if (!std::isfinite(d) || d != std::floor(d) || d < lo || d > hi) out_of_range(key, lo, hi);
     field = static_cast<std::remove_reference_t<decltype(field)>>(d);
   });
+  apply_hostile_input_json(c, j);
 }
 
 void validate(const Config& c) {
@@ -130,6 +145,34 @@ void validate(const Config& c) {
     const auto v = static_cast<double>(field);
     if (v < lo || v > hi) out_of_range(key, lo, hi);
   });
+}
+
+// ---- hostile input (issue 11): its keys, kept together ----
+namespace {
+
+void apply_hostile_input_json(Config&, const json& j) {  // their numbers: each_number
+  if (j.contains("input")) {
+    check_keys(j["input"], {"max_pixels", "max_channels", "max_file_bytes", "max_read_bytes"},
+               "input.");
+  }
+}
+
+json hostile_input_json(const Config& c) {
+  return {{"max_pixels", c.input.max_pixels},
+          {"max_channels", c.input.max_channels},
+          {"max_file_bytes", c.input.max_file_bytes},
+          {"max_read_bytes", c.input.max_read_bytes}};
+}
+
+}  // namespace
+
+io::ReadLimits read_limits(const InputLimits& in, std::uint64_t max_file_bytes) {
+  io::ReadLimits r;
+  r.max_pixels = in.max_pixels;
+  r.max_channels = in.max_channels;
+  r.max_file_bytes = max_file_bytes;
+  r.max_memory_bytes = in.max_read_bytes;
+  return r;
 }
 
 void load_config_file(Config& c, const std::string& path) {
@@ -167,7 +210,12 @@ json to_json(const Config& c) {
             {"max_connections", c.limits.max_connections},
             {"sse_history", c.limits.sse_history},
             {"sse_keepalive_ms", c.limits.sse_keepalive_ms},
-            {"sse_queue_limit", c.limits.sse_queue_limit}}},
+            {"sse_queue_limit", c.limits.sse_queue_limit},
+            {"max_sse_streams", c.limits.max_sse_streams},
+            {"max_sse_per_client", c.limits.max_sse_per_client},
+            {"reserved_connections", c.limits.reserved_connections}}},
+          {"input", hostile_input_json(c)},
+          {"handler_threads", c.handler_threads},
           {"watch",
            {{"poll_interval_ms", c.watch.poll_interval_ms},
             {"settle_ms", c.watch.settle_ms},

@@ -1,6 +1,9 @@
 #include "daemon/engine.hpp"
 
+#include <fcntl.h>
 #include <spdlog/spdlog.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cstdio>
@@ -241,6 +244,8 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
     in.spec = job->spec;
     in.frame = frame_no;
   }
+  in.roots = &roots_;
+  in.limits = read_limits(config_.input, config_.input.max_file_bytes);
   const std::vector<PendingPass> batch = in.batch;
 
   FrameRun::Hooks hooks;
@@ -481,12 +486,16 @@ protocol::JobSpec Engine::create_job(protocol::JobSpec spec) {
     }
     auto real = roots_.confine(p, why);
     if (!real) throw ApiError(403, "path_forbidden", std::string(field) + ": " + why);
-    std::error_code ec;
-    fs::create_directories(*real, ec);
-    if (ec || !fs::is_directory(*real)) {
+    // Created one directory at a time beneath the root: a symlink swapped in meanwhile is refused.
+    FileError fe = FileError::none;
+    if (!roots_.make_dirs(*real, fe, why)) {
+      if (fe == FileError::escape) {
+        throw ApiError(403, "path_forbidden", std::string(field) + ": " + why);
+      }
       throw ApiError(400, "invalid_path",
                      std::string(field) + ": cannot create directory " + real->string());
     }
+    std::error_code ec;
     // Re-check after creation: a symlink may have appeared in the meantime.
     const fs::path again = fs::canonical(*real, ec);
     if (ec || !roots_.contains(again)) {
@@ -620,39 +629,21 @@ Engine::UploadFit Engine::fit(const Frame& fr, const std::string& pass, std::uin
                                                                       : UploadFit::conflict;
 }
 
-fs::path Engine::spool_path(const std::string& id, const std::string& frame,
-                            const std::string& pass) {
-  check_upload(id, frame, pass);
-  return store_.spool_path(id, parse_frame(frame), pass);
-}
-
 json Engine::upload(const std::string& id, const std::string& frame, const std::string& pass,
                     const std::string& body) {
   check_upload(id, frame, pass);
   if (body.empty()) throw ApiError(400, "invalid_pass", "empty body");
-  const std::uint64_t hash =
-      hash_bytes({reinterpret_cast<const unsigned char*>(body.data()), body.size()});
-  const long f = parse_frame(frame);
-  return store_upload(id, frame, pass, store_.spool_upload(id, f, pass, body), hash, body.size());
+  return upload_spooled(id, frame, pass, store_.spool_upload(id, parse_frame(frame), pass, body));
+}
+
+fs::path Engine::upload_spool(const std::string& id, const std::string& frame,
+                              const std::string& pass) {
+  check_upload(id, frame, pass);
+  return store_.spool_path(id, parse_frame(frame), pass);
 }
 
 json Engine::upload_spooled(const std::string& id, const std::string& frame,
                             const std::string& pass, const fs::path& spooled) {
-  std::uint64_t hash = 0, size = 0;
-  {
-    const auto bytes = read_file(spooled);
-    if (!bytes) {
-      store_.remove_file(spooled);
-      throw ApiError(500, "internal", "the stored upload cannot be read back");
-    }
-    hash = hash_bytes(std::span<const unsigned char>(*bytes));
-    size = bytes->size();
-  }
-  return store_upload(id, frame, pass, spooled, hash, size);
-}
-
-json Engine::store_upload(const std::string& id, const std::string& frame, const std::string& pass,
-                          const fs::path& spooled, std::uint64_t hash, std::uint64_t size) {
   struct Spool {  // removed unless it became the stored upload
     const JobStore& store;
     fs::path path;
@@ -662,7 +653,22 @@ json Engine::store_upload(const std::string& id, const std::string& frame, const
   } tmp{store_, spooled};
   check_upload(id, frame, pass);
   const long f = parse_frame(frame);
+  std::string renderer;
+  {
+    std::lock_guard lock(mu_);
+    renderer = find(id)->spec.renderer;
+  }
+  // The body is never read into memory: its size, content hash and header all come through one
+  // descriptor (within the read limits), so a client sending garbage hears about it now.
+  const UniqueFd fd(open_regular_nofollow(spooled));
+  struct stat st {};
+  if (!fd || ::fstat(fd.get(), &st) != 0) {
+    throw ApiError(500, "internal", "the stored upload cannot be read back");
+  }
+  const auto size = static_cast<std::uint64_t>(st.st_size);
   if (size == 0) throw ApiError(400, "invalid_pass", "empty body");
+  const std::optional<std::uint64_t> hash = hash_fd(fd.get(), size);
+  if (!hash) throw ApiError(500, "internal", "the stored upload cannot be read back");
   auto answer = [&](const char* status) {
     return json{{"job", id}, {"frame", f}, {"pass", pass}, {"bytes", size}, {"status", status}};
   };
@@ -679,12 +685,15 @@ json Engine::store_upload(const std::string& id, const std::string& frame, const
     std::lock_guard lock(mu_);
     auto job = find(id);
     if (auto fr = job->frames.find(f); fr != job->frames.end()) {
-      if (auto done = settled(fit(fr->second, pass, hash))) return *done;
+      if (auto done = settled(fit(fr->second, pass, *hash))) return *done;
     }
   }
-  try {  // header check now, so a client sending garbage hears about it
+  try {
+    ::fsync(fd.get());
     io::ReadOptions ro;
-    io::probe_pass(spooled.string(), ro);
+    ro.renderer = io::parse_renderer(renderer).value_or(io::Renderer::automatic);
+    ro.limits = read_limits(config_.input, config_.limits.max_upload_bytes);
+    io::probe_pass(io::FdSource(fd.get(), size), spooled.string(), ro);
   } catch (const std::exception& e) {
     throw ApiError(400, "invalid_pass", std::string("not a readable pass: ") + e.what());
   }
@@ -696,7 +705,7 @@ json Engine::store_upload(const std::string& id, const std::string& frame, const
     job = find(id);
     Frame& fr = job->frames[f];
     fr.rec.frame = f;
-    if (auto done = settled(fit(fr, pass, hash))) return *done;
+    if (auto done = settled(fit(fr, pass, *hash))) return *done;
     fr.inflight[pass] = claim;
   }
   fs::path path;
@@ -714,7 +723,7 @@ json Engine::store_upload(const std::string& id, const std::string& frame, const
     std::lock_guard lock(mu_);
     Frame& fr = job->frames[f];
     fr.inflight.erase(pass);
-    fr.pending[pass] = PendingPass{pass, path, size, mt, true, hash};
+    fr.pending[pass] = PendingPass{pass, path, size, mt, true, *hash};
     job->quarantine.erase(f, pass);
     enqueue(*job, f);
   }
@@ -832,7 +841,30 @@ Engine::ImageFile Engine::image(const std::string& id, long frame,
     version = it->second.published_version;
     exr = output_base(job->spec, frame).string() + ".exr";
   }
-  return previews_.get(store_.cache_dir(id), exr, frame, version, request);
+  if (request.format == "exr" && request.layer.empty()) {  // the API opens it confined
+    return previews_.get(store_.cache_dir(id), exr, frame, version, request);
+  }
+  // A rendition decodes the published EXR: open it beneath its root now, check its header within
+  // the read limits, and let the decoder read exactly that descriptor (/proc/self/fd/N names it).
+  FileError fe = FileError::none;
+  std::string why;
+  const UniqueFd fd = roots_.open(exr, O_RDONLY | O_NONBLOCK | O_NOCTTY, fe, why);
+  if (!fd) {
+    if (fe == FileError::escape) throw ApiError(403, "path_forbidden", why);
+    throw ApiError(404, "not_found", "the published image is not readable");
+  }
+  struct stat st {};
+  if (::fstat(fd.get(), &st) != 0 || !S_ISREG(st.st_mode)) {
+    throw ApiError(404, "not_found", "the published image is not a file");
+  }
+  try {
+    io::inspect_header(io::FdSource(fd.get(), static_cast<std::uint64_t>(st.st_size)), exr.string(),
+                       read_limits(config_.input, config_.input.max_file_bytes));
+  } catch (const std::exception& e) {
+    throw ApiError(500, "internal", e.what());
+  }
+  return previews_.get(store_.cache_dir(id), "/proc/self/fd/" + std::to_string(fd.get()), frame,
+                       version, request);
 }
 
 }  // namespace proden::daemon

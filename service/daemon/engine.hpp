@@ -73,12 +73,12 @@ class Engine {
   // bytes; 409 when (frame, pass) has other bytes.
   nlohmann::json upload(const std::string& id, const std::string& frame, const std::string& pass,
                         const std::string& body);
-  // The same for a body already written to `spooled` (a path from spool_path(), taken over).
+  // Where the HTTP layer streams an upload's body (checks the target first, like check_upload).
+  std::filesystem::path upload_spool(const std::string& id, const std::string& frame,
+                                     const std::string& pass);
+  // An upload whose body was streamed to `spooled` (taken over: moved into place or removed).
   nlohmann::json upload_spooled(const std::string& id, const std::string& frame,
                                 const std::string& pass, const std::filesystem::path& spooled);
-  // A unique temp path for an upload body in the job's state directory.
-  std::filesystem::path spool_path(const std::string& id, const std::string& frame,
-                                   const std::string& pass);
   std::vector<protocol::FrameStatus> frames(const std::string& id) const;
   protocol::FrameStatus frame(const std::string& id, long frame) const;
   using ImageFile = PreviewCache::File;
@@ -127,10 +127,6 @@ class Engine {
   // What an upload of (frame, pass) with these bytes is, given what the frame has.
   enum class UploadFit { fresh, queued, ingested, conflict };
   UploadFit fit(const Frame& fr, const std::string& pass, std::uint64_t hash) const;
-  // Checks a spooled upload (content `hash`, `size` bytes) and claims, stores and queues it.
-  nlohmann::json store_upload(const std::string& id, const std::string& frame,
-                              const std::string& pass, const std::filesystem::path& spooled,
-                              std::uint64_t hash, std::uint64_t size);
 
   void load_state();
   void load_job(const std::filesystem::path& dir);

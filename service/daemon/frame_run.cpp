@@ -1,5 +1,6 @@
 #include "daemon/frame_run.hpp"
 
+#include <fcntl.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -9,9 +10,11 @@
 
 #include "daemon/files.hpp"
 #include "daemon/frame_history.hpp"
+#include "daemon/pass_source.hpp"
 #include "daemon/processor.hpp"
 #include "proden/error.hpp"
 #include "proden/hash.hpp"
+#include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/protocol/json.hpp"
 
@@ -107,26 +110,23 @@ FrameRun::Outcome FrameRun::run(Input in) {
   io::ReadOptions ro;
   ro.renderer = io::parse_renderer(spec.renderer).value_or(io::Renderer::automatic);
   ro.spp = spec.spp;
+  ro.limits = in.limits;
+  // A pass of another size than the frame's is refused from its header, before decoding.
+  if (in.has_state && rec.width > 0 && rec.height > 0)
+    ro.frame_size = std::pair{rec.width, rec.height};
   std::vector<protocol::PassIdentity> accepted;
   std::vector<PendingPass> accepted_passes;
   std::uint64_t accepted_bytes = 0;
   for (const auto& p : batch) {
     try {
       auto t0 = Clock::now();
-      std::error_code ec;
-      const std::uint64_t size = fs::file_size(p.path, ec);
-      const std::int64_t mt = ec ? 0 : mtime_ns(p.path, ec);
-      if (ec) continue;  // gone: nothing to count (the watcher re-discovers a re-created file)
-      if (!p.upload && (size != p.size || mt != p.mtime_ns)) continue;  // changed: re-settles
+      // Opened once, at the moment of use: beneath its root, within the read limits.
       store_.fault_point("read", p.path);
-      auto bytes = read_file(p.path);
-      if (!bytes || bytes->size() != size) {
-        throw InputError(InputErrorKind::unreadable, p.path.string(), "cannot be read to the end");
-      }
-      protocol::PassIdentity id{p.pass, p.path.string(), size, mt,
-                                hash_bytes(std::span<const unsigned char>(*bytes))};
-      bytes.reset();
-      const Pass pass = io::read_pass(p.path.string(), ro);
+      auto src = read_pending_pass(p, in.roots, ro);
+      if (!src) continue;  // gone or changed: the watcher offers it again once it settles
+      const std::uint64_t size = src->size;
+      protocol::PassIdentity id{p.pass, p.path.string(), size, src->mtime_ns, src->content_hash};
+      const Pass& pass = src->pass;
       if (!std::isfinite(pass.spp) || pass.spp > protocol::kMaxPassSpp) {
         throw InputError(InputErrorKind::invalid_value, p.path.string(),
                          "samples per pixel " + std::to_string(pass.spp) +
@@ -207,7 +207,19 @@ FrameRun::Outcome FrameRun::run(Input in) {
       }
     }
     t0 = Clock::now();
-    fs::create_directories(spec.output.dir);
+    // The output directory is opened (and created) beneath its root now, and the files are
+    // written through that descriptor: a symlink swapped in since the job was created is refused.
+    UniqueFd out_dir;
+    if (in.roots) {
+      FileError fe = FileError::none;
+      std::string why;
+      out_dir = in.roots->make_dirs(spec.output.dir, fe, why);
+      if (!out_dir) throw std::runtime_error("output.dir " + spec.output.dir + ": " + why);
+    } else {
+      fs::create_directories(spec.output.dir);
+      out_dir = UniqueFd(::open(spec.output.dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
+    }
+    const io::OutputDirectory bound(spec.output.dir, out_dir.get());
     store_.fault_point("publish", output_base(spec, frame_no));
     const auto outputs =
         FrameProcessor::publish(out, output_base(spec, frame_no).string(), spec.output.png);

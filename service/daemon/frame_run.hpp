@@ -16,11 +16,13 @@
 #include <vector>
 
 #include "daemon/events.hpp"
+#include "daemon/files.hpp"
 #include "daemon/frame_state.hpp"
 #include "daemon/job_store.hpp"
 #include "daemon/metrics.hpp"
 #include "daemon/quarantine.hpp"
 #include "proden/accumulator.hpp"
+#include "proden/io/image_header.hpp"
 #include "proden/protocol/api.hpp"
 
 namespace proden::daemon {
@@ -62,6 +64,10 @@ class FrameRun {
     bool republish = false;                 // the persisted version is not published yet
     std::shared_ptr<FrameAccumulator> acc;  // resident state, or null (loaded from the store)
     std::vector<PendingPass> batch;         // passes to read, any order
+    // Watched passes are read, and outputs written, beneath these roots (null: no confinement,
+    // for tests of runs that read only stored uploads); reads are bounded by `limits`.
+    const Roots* roots = nullptr;
+    io::ReadLimits limits;
   };
   enum class Result {
     done,              // ran to the end (some passes may have failed)

@@ -2,9 +2,10 @@
 // one directory per job with job.json, quarantine.json, frames/<n>.state (the frame's state),
 // frames/<n>.prev (the state before it: the last good state should <n>.state be damaged),
 // frames/<n>.kept/ (the uploads accumulated by the latest state, kept until the next one so that
-// falling back to <n>.prev loses nothing), frames/<n>.pub (the version last published), frames/<n>.history (the versions published),
-// uploads/<n>/<pass>.exr and cache/. It saves atomically and durably and recovers what a previous
-// process left (start-up). It holds no in-memory job state; the engine orders calls on one job.
+// falling back to <n>.prev loses nothing), frames/<n>.pub (the version last published),
+// frames/<n>.history (the versions published), uploads/<n>/<pass>.exr and cache/. It saves
+// atomically and durably and recovers what a previous process left (start-up). It holds no
+// in-memory job state; the engine orders calls on one job.
 #pragma once
 
 #include <cstdint>
@@ -101,7 +102,8 @@ class JobStore {
   void save_published(const std::string& id, long frame, std::uint64_t version);
 
   // ---- uploads ----
-  // A unique temp path in the frame's upload directory (created, and made durable) for a body.
+  // A unique temp path in the frame's upload directory (created, and made durable) for a body
+  // streamed there.
   std::filesystem::path spool_path(const std::string& id, long frame, const std::string& pass);
   // Writes an upload body to a unique temp path (spool_path) and returns it.
   std::filesystem::path spool_upload(const std::string& id, long frame, const std::string& pass,

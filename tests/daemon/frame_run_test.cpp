@@ -107,7 +107,7 @@ TEST_CASE("FrameRun: an accumulated upload is kept aside, a failed pass is repor
   CHECK(fs::exists(r.store.kept_dir("j1", 1) / "a.exr"));
   REQUIRE(r.failed.size() == 1);
   CHECK(r.failed[0].first.pass == "b");
-  CHECK(r.failed[0].second.kind == "unreadable");
+  CHECK(r.failed[0].second.kind == "unsupported_format");  // not EXR or HDR by its bytes
   CHECK(r.failed[0].second.cls == ErrorClass::bad_input);
   REQUIRE(r.committed.size() == 1);
   CHECK(r.committed[0].passes == 1);

@@ -271,13 +271,15 @@ Image NforDenoiser::run(const DenoiseInputs& in, NforExtras* extras) const {
     sec.selection = since(t);
     // §5.4: the selected result filtered once more, the regression weighted on the combined
     // colour x with its variance from the halves, (x_A - x_B)^2 / 4 (docs/nfor.md).
-    // The halves combine like x = a x_A + b x_B (a = Var[x] / Var[x_A], 1/2 for equal halves).
+    // The halves combine like x = a x_A + b x_B (a = Var[x] / Var[x_A] = Var[x_B] / (Var[x_A] +
+    // Var[x_B]), 1/2 for equal halves). From the halves alone: the pipeline may hand the weights
+    // a Var[x] raised to the pooled variance (few passes, docs/pipeline.md).
     Planes sel(g, 3), xvar(g, 3), share_a(g, 1);
     each_index(g, [&](std::size_t i) {
       int c = 0;  // the channel with the largest Var[x_A] (Var = 0 says nothing)
       for (int cc = 1; cc < 3; ++cc) c = va.plane(cc)[i] > va.plane(c)[i] ? cc : c;
-      const float v = var.plane(c)[i], v_a = va.plane(c)[i];
-      const float a = v_a > 0.0f ? std::clamp(v / v_a, 0.0f, 1.0f) : 0.5f;
+      const float v_a = va.plane(c)[i], v_b = vb.plane(c)[i];
+      const float a = v_a > 0.0f ? std::clamp(v_b / (v_a + v_b), 0.0f, 1.0f) : 0.5f;
       share_a.plane(0)[i] = a;
       for (int cc = 0; cc < 3; ++cc) {
         sel.plane(cc)[i] = a * sel_a.plane(cc)[i] + (1.0f - a) * sel_b.plane(cc)[i];
