@@ -3,8 +3,8 @@
 
 Generated parts: accuracy.md + accuracy_summary.json (bench/accuracy.py), perf.json + perf.txt
 (proden_bench_pipeline), cycles_1080p.json (Blender, same run), micro.txt (Google Benchmark).
-Hand-written parts, included verbatim: accumulation.md, daemon.md, dashboard.md, hostile.md, few_passes.md (measurements made by other
-tools; edit them there, not in RESULTS.md).
+Hand-written parts, included verbatim: accumulation.md, daemon.md, dashboard.md, hostile.md,
+soak.md, few_passes.md (measurements made by other tools; edit them there, not in RESULTS.md).
 """
 import json
 import math
@@ -200,7 +200,8 @@ def main():
          "edit by hand. The generated parts come from `bench/results/` (CSV, PNG, JSON, raw "
          "output). The *Accumulation*, *Daemon* and *Dashboard* sections were measured by other "
          "tools and are kept as hand-written parts, `bench/results/accumulation.md`, "
-         "`bench/results/daemon.md`, `bench/results/dashboard.md` and `bench/results/hostile.md`, "
+         "`bench/results/daemon.md`, `bench/results/dashboard.md`, `bench/results/hostile.md` and "
+         "`bench/results/soak.md`, "
          "which the generator "
          "includes verbatim: edit those files. "
          "So are `bench/results/few_passes.md` (written by `bench/few_passes.py`) and "
@@ -230,7 +231,7 @@ def main():
         L.append("\n".join(l for l in micro.splitlines() if l.startswith(("BM_", "---", "Bench",
                                                                           "Run on"))))
         L.append("```\n")
-    for part in ("accumulation.md", "daemon.md", "dashboard.md", "hostile.md"):
+    for part in ("accumulation.md", "daemon.md", "dashboard.md", "hostile.md", "soak.md"):
         t = read(part)
         if t:
             L.append(t)

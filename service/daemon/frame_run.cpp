@@ -106,6 +106,15 @@ FrameRun::Outcome FrameRun::run(Input in) {
     return {Result::state_unreadable, nullptr, false, e.what()};
   }
 
+  // A version committed but not published (killed, or its publish failed, in between) is
+  // published as itself before new passes make the next one: every version is published, in
+  // the history and announced (docs/api.md, "kill -9 at any moment loses nothing").
+  if (in.republish && !batch.empty()) {
+    Outcome o = commit_and_publish(spec, frame_no, rec, acc, {}, {}, 0, in.roots);
+    if (o.result != Result::done) return o;
+    in.republish = false;
+  }
+
   // 2. Read and accumulate each pass; a pass that fails is reported and left out.
   io::ReadOptions ro;
   ro.renderer = io::parse_renderer(spec.renderer).value_or(io::Renderer::automatic);
@@ -148,8 +157,18 @@ FrameRun::Outcome FrameRun::run(Input in) {
   }
 
   if (accepted.empty() && !in.republish) return {Result::done, acc, false, {}};
+  return commit_and_publish(spec, frame_no, rec, acc, accepted, accepted_passes, accepted_bytes,
+                            in.roots);
+}
 
-  // 3. Commit (persist), then publish.
+// 3. Commit (persist) the accepted passes, if any, then publish the frame's version.
+FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, long frame_no,
+                                               FrameRecord& rec,
+                                               const std::shared_ptr<FrameAccumulator>& acc,
+                                               const std::vector<protocol::PassIdentity>& accepted,
+                                               const std::vector<PendingPass>& accepted_passes,
+                                               std::uint64_t accepted_bytes, const Roots* roots) {
+  const std::string& job_id = spec.id;
   bool committed = false;
   try {
     auto t0 = Clock::now();
@@ -210,10 +229,10 @@ FrameRun::Outcome FrameRun::run(Input in) {
     // The output directory is opened (and created) beneath its root now, and the files are
     // written through that descriptor: a symlink swapped in since the job was created is refused.
     UniqueFd out_dir;
-    if (in.roots) {
+    if (roots) {
       FileError fe = FileError::none;
       std::string why;
-      out_dir = in.roots->make_dirs(spec.output.dir, fe, why);
+      out_dir = roots->make_dirs(spec.output.dir, fe, why);
       if (!out_dir) throw std::runtime_error("output.dir " + spec.output.dir + ": " + why);
     } else {
       fs::create_directories(spec.output.dir);
@@ -223,11 +242,11 @@ FrameRun::Outcome FrameRun::run(Input in) {
     store_.fault_point("publish", output_base(spec, frame_no));
     const auto outputs =
         FrameProcessor::publish(out, output_base(spec, frame_no).string(), spec.output.png);
-    store_.save_published(job_id, frame_no, rec.version);
-    metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
-    hooks_.published(rec.version, outputs);
-    metrics_.inc("proden_frame_updates_total");
     // What the version is worth, for the accuracy-over-time chart (FrameHistory) and the event.
+    // The history line goes before the version is recorded as published: killed in between,
+    // the version is published again on restart (one line per version: FrameHistory::load),
+    // so every published version is in the history even when its event was lost with the
+    // process (events are kept in memory only).
     json entry = {
         {"version", rec.version},
         {"updated", rec.updated},
@@ -241,6 +260,10 @@ FrameRun::Outcome FrameRun::run(Input in) {
     } catch (const std::exception& e) {  // a chart point lost; the version itself stands
       spdlog::warn("job {} frame {}: history: {}", job_id, frame_no, e.what());
     }
+    store_.save_published(job_id, frame_no, rec.version);
+    metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
+    hooks_.published(rec.version, outputs);
+    metrics_.inc("proden_frame_updates_total");
     json data = entry;
     data.update({{"job", job_id},
                  {"name", spec.name},

@@ -4,8 +4,8 @@
 // file (the commit point), keep the accumulated uploads aside (until the next commit: they back
 // the last good state), publish the new version, record it as published and announce it. A crash
 // before the commit loses nothing (the passes are found again); after it, the version is
-// re-published on restart. A damaged state falls back to the last good one (an error event says
-// so); nothing non-finite is ever committed.
+// re-published on restart, as itself, before new passes make the next one. A damaged state falls
+// back to the last good one (an error event says so); nothing non-finite is ever committed.
 #pragma once
 
 #include <cstdint>
@@ -83,6 +83,11 @@ class FrameRun {
   Outcome run(Input in);
 
  private:
+  Outcome commit_and_publish(const protocol::JobSpec& spec, long frame_no, FrameRecord& rec,
+                             const std::shared_ptr<FrameAccumulator>& acc,
+                             const std::vector<protocol::PassIdentity>& accepted,
+                             const std::vector<PendingPass>& accepted_passes,
+                             std::uint64_t accepted_bytes, const Roots* roots);
   JobStore& store_;
   Metrics& metrics_;
   EventHub& events_;
