@@ -343,9 +343,9 @@ def main(argv=None):
     p.add_argument("--url", default=os.environ.get("PRODEN_URL", "http://127.0.0.1:8080"))
     p.add_argument("--token-file", default=os.environ.get("PRODEN_TOKEN_FILE"))
     sub = p.add_subparsers(dest="cmd", required=True)
-    e = sub.add_parser("ensure-job", help="create a job from a JSON file ('-' = stdin) unless one "
-                       "of that name exists; prints the job")
-    e.add_argument("spec")
+    e = sub.add_parser("ensure-job", help="create a job unless one of that name exists (a re-run "
+                       "registration task succeeds); prints the job")
+    e.add_argument("spec", help="a JSON file, '-' for stdin, or the JSON object itself")
     f = sub.add_parser("frame", help="print a frame's status (exit 3 if it has no pass yet)")
     f.add_argument("job")
     f.add_argument("frame", type=int)
@@ -356,7 +356,13 @@ def main(argv=None):
     c = Client(a.url, token_file=a.token_file)
     try:
         if a.cmd == "ensure-job":
-            spec = json.load(sys.stdin if a.spec == "-" else open(a.spec))
+            if a.spec.lstrip().startswith("{"):
+                spec = json.loads(a.spec)
+            elif a.spec == "-":
+                spec = json.load(sys.stdin)
+            else:
+                with open(a.spec) as fh:
+                    spec = json.load(fh)
             print(json.dumps(c.ensure_job(spec)))
         elif a.cmd == "frame":
             fr = c.frame(a.job, a.frame, missing_ok=True)

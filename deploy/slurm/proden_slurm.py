@@ -119,6 +119,8 @@ def render_command(a, frame, p, out):
 
 def converged(c, job, frame):
     """The frame's convergence, or False when proden cannot say (unreachable daemon: render)."""
+    if job is None:
+        return False
     try:
         f = c.frame(job, frame, missing_ok=True)
     except proden_client.ProdenError as e:
@@ -129,6 +131,19 @@ def converged(c, job, frame):
     return bool(f and f.get("converged"))
 
 
+def job_id_by_name(c, name):
+    try:
+        for j in c.jobs():
+            if j["name"] == name:
+                return j["id"]
+    except proden_client.ProdenError as e:
+        if e.status != 0:
+            raise
+        log("proden unreachable (%s); rendering anyway" % e.message)
+        return None
+    raise SystemExit("proden_slurm: no proden job named %s (register it first)" % name)
+
+
 def cmd_task(a):
     layout = Layout(a.frames, a.passes)
     i = a.index if a.index is not None else int(os.environ.get("SLURM_ARRAY_TASK_ID", "-1"))
@@ -136,6 +151,8 @@ def cmd_task(a):
         raise SystemExit("proden_slurm: task index %d outside 0..%d" % (i, layout.size() - 1))
     frame, p = layout.task(i)
     c = client_of(a)
+    if a.job is None:
+        a.job = job_id_by_name(c, a.job_name)
     t0 = time.monotonic()
     if converged(c, a.job, frame):
         print("PRODEN_TASK index=%d frame=%d pass=%d state=skipped seconds=%.3f"
@@ -325,7 +342,10 @@ def main(argv=None):
     add_common(t)
     add_layout(t)
     add_render(t)
-    t.add_argument("--job", required=True, help="proden job id")
+    g = t.add_mutually_exclusive_group(required=True)
+    g.add_argument("--job", help="proden job id")
+    g.add_argument("--job-name", help="proden job name (looked up; e.g. Flamenco tasks, compiled "
+                   "before the job is registered)")
     t.add_argument("--watch", required=True)
     t.add_argument("--index", type=int, help="task index (default: SLURM_ARRAY_TASK_ID)")
 
