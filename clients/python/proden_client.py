@@ -259,6 +259,12 @@ class Client:
             fields = {}
             data = []
             while True:
+                if deadline is not None:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        return
+                    if conn.sock is not None:  # keep-alive comments must not outlive the deadline
+                        conn.sock.settimeout(min(read_timeout, left))
                 try:
                     line = r.readline()
                 except socket.timeout:

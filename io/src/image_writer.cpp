@@ -88,4 +88,8 @@ void write_image(const std::string& path, int width, int height,
   fsync_path(dir.string(), O_RDONLY | O_DIRECTORY);
 }
 
+void add_aovs(std::vector<NamedChannel>& out, const std::vector<AovChannel>& aovs) {
+  for (const auto& a : aovs) out.push_back({a.name, a.plane.data()});
+}
+
 }  // namespace proden::io

@@ -127,11 +127,28 @@ std::optional<double> parse_duration(const std::string& s) {
 struct Resolved {
   ChannelMap map;
   std::vector<std::string> colour, albedo, normal, depth, variance;
+  std::vector<AovSource> aovs;
 };
 
 Resolved resolve(const Header& h, const std::string& path, const ReadOptions& options,
                  PassInfo& info) {
-  auto map = detect_profile(h.channels, h.attribute_values, options.renderer);
+  std::vector<std::string> attribute_names;
+  for (const auto& [k, v] : h.attributes) attribute_names.push_back(k);
+  auto map = detect_profile(h.channels, h.attribute_values, options.renderer, attribute_names,
+                            options.view_layer);
+  if (!options.view_layer.empty()) {  // a chosen Cycles view layer must be there
+    const auto any =
+        detect_profile(h.channels, h.attribute_values, options.renderer, attribute_names);
+    if (any && any->renderer == Renderer::cycles &&
+        std::find(any->layers.begin(), any->layers.end(), options.view_layer) ==
+            any->layers.end()) {
+      std::string have;
+      for (const auto& l : any->layers) have += (have.empty() ? "" : ", ") + l;
+      fail(InputErrorKind::missing_channels, path,
+           "no view layer '" + options.view_layer +
+               "' (the file has: " + (have.empty() ? "none" : have) + ")");
+    }
+  }
   if (!map) {
     std::string found;
     for (const auto& c : h.channels) found += (found.empty() ? "" : ", ") + c;
@@ -139,7 +156,7 @@ Resolved resolve(const Header& h, const std::string& path, const ReadOptions& op
          "no colour channels (expected R,G,B or <ViewLayer>.Combined.{R,G,B} for profile " +
              std::string(to_string(options.renderer)) + "); found: " + found);
   }
-  Resolved r{*map, pick(h, map->colour), {}, {}, {}, {}};
+  Resolved r{*map, pick(h, map->colour), {}, {}, {}, {}, aov_sources(*map, h.channels)};
   if (options.features) {
     r.albedo = pick(h, map->albedo);
     r.normal = pick(h, map->normal);
@@ -151,6 +168,14 @@ Resolved resolve(const Header& h, const std::string& path, const ReadOptions& op
   info.format = h.format;
   info.renderer = map->renderer;
   info.layer = map->layer;
+  info.layers = map->layers;
+  info.aovs.clear();
+  for (const auto& a : r.aovs) info.aovs.push_back(a.name);
+  {
+    const std::vector<std::pair<std::string, std::string>> attrs(h.attributes.begin(),
+                                                                 h.attributes.end());
+    info.aov_attributes = aov_attributes(*map, attrs, r.aovs);
+  }
   info.width = h.width;
   info.height = h.height;
   info.subimages = h.subimages;
@@ -262,7 +287,8 @@ class ChannelLoader {
 
 }  // namespace
 
-Pass read_pass(const std::string& path, const ReadOptions& options, PassInfo* info_out) {
+Pass read_pass(const std::string& path, const ReadOptions& options, PassInfo* info_out,
+               std::vector<AovChannel>* aovs) {
   auto in = open_checked(path);
   const Header h = read_header(*in, path);
   PassInfo info;
@@ -275,6 +301,10 @@ Pass read_pass(const std::string& path, const ReadOptions& options, PassInfo* in
   pass.depth = loader.load(r.depth);
   pass.variance = loader.load(r.variance);
   pass.spp = info.spp;
+  if (aovs) {
+    aovs->clear();
+    for (const auto& a : r.aovs) aovs->push_back({a.name, loader.load({a.channel})});
+  }
   in->close();
   if (info_out) *info_out = std::move(info);
   return pass;

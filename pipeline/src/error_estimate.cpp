@@ -36,10 +36,11 @@ struct Sums {
   }
 };
 
-// Relative standard error of the frame mean of per-element terms t_j: their average noise
-// variance from horizontally adjacent pixels, sum (t_{i+1} - t_i)^2 / (2 pairs) (differences of
-// neighbours ignore smooth spatial trends of the error itself), times kPixelsPerDraw for the
-// correlation of neighbouring pixels, over the element count.
+// Standard error of the frame mean of per-element terms t_j: their average noise variance from
+// horizontally adjacent pixels, sum (t_{i+1} - t_i)^2 / (2 pairs) (differences of neighbours
+// ignore smooth spatial trends of the error itself), times kPixelsPerDraw for the correlation of
+// neighbouring pixels, over the element count. Absolute, so a mean clamped at 0 (a negative SURE)
+// still gets the spread of its terms.
 struct DiffVar {
   double ss = 0;
   std::size_t pairs = 0;
@@ -47,12 +48,9 @@ struct DiffVar {
     ss += (b - a) * (b - a);
     ++pairs;
   }
-  double rse(double mean, double elements) const {
+  double se(double elements) const {
     if (pairs == 0) return 0.0;
-    const double var = ss / (2.0 * static_cast<double>(pairs));
-    if (var == 0.0) return 0.0;
-    if (!(std::abs(mean) > 0)) return kInf;
-    return std::sqrt(kPixelsPerDraw * var / elements) / std::abs(mean);
+    return std::sqrt(kPixelsPerDraw * ss / (2.0 * static_cast<double>(pairs)) / elements);
   }
 };
 
@@ -88,9 +86,9 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   const int W = x.width(), H = x.height();
   const std::size_t n = x.pixels();
 
-  Sums m, r;                 // MSE and relMSE sums
-  double q = 0;              // sum of w v: the render's own relMSE
-  DiffVar dm, dmf, dr, drf;  // neighbour differences of the MSE and relMSE terms (and floors)
+  Sums m, r;       // MSE and relMSE sums
+  double q = 0;    // sum of w v: the render's own relMSE
+  DiffVar dm, dr;  // neighbour differences of the MSE and relMSE terms
   for (int c = 0; c < 3; ++c) {
     const auto xv = x.plane(c), vv = in.variance->plane(c), zv = in.result->plane(c);
     std::span<const float> yv, av, sv;
@@ -100,7 +98,7 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
       sv = in.sure->plane(c);
     }
     for (int py = 0; py < H; ++py) {
-      double prev[4] = {0, 0, 0, 0};
+      double prev[2] = {0, 0};
       for (int px = 0; px < W; ++px) {
         const std::size_t i = static_cast<std::size_t>(py) * W + px;
         const double v = std::max(0.0, static_cast<double>(vv[i]));
@@ -122,14 +120,12 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
         r.d += w * ed;
         r.f += w * f;
         q += w * v;
-        const double cur[4] = {ev + ed, f, w * (ev + ed), w * f};
+        const double cur[2] = {ev + ed, w * (ev + ed)};
         if (px > 0) {
           dm.add(prev[0], cur[0]);
-          dmf.add(prev[1], cur[1]);
-          dr.add(prev[2], cur[2]);
-          drf.add(prev[3], cur[3]);
+          dr.add(prev[1], cur[1]);
         }
-        std::copy(cur, cur + 4, prev);
+        std::copy(cur, cur + 2, prev);
       }
     }
   }
@@ -150,10 +146,9 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   e.relmse = r.at(1.0);
   e.render_relmse = q;
 
-  // Sampling error of the pixel average, for the branch (estimate or floor) in use.
-  const bool m_floor = m.v + m.d < m.f, r_floor = r.v + r.d < r.f;
-  e.sampling_rse = (m_floor ? dmf : dm).rse(e.mse, N);
-  const double rse_r = (r_floor ? drf : dr).rse(e.relmse, N);
+  // Sampling error of the pixel averages (absolute).
+  const double se_m = dm.se(N), se_r = dr.se(N);
+  e.sampling_rse = se_m == 0.0 ? 0.0 : e.mse > 0 ? se_m / e.mse : kInf;
 
   // Effective degrees of freedom of the variance scale.
   double dof_pixel = 0.0;
@@ -178,39 +173,49 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   const double zq = boost::math::quantile(
       boost::math::complement(boost::math::normal_distribution<double>(), alpha / 2));
 
-  auto bounds = [&](const Sums& s, double rse, double& low, std::optional<double>& high) {
+  // The interval: the variance scale's range, widened by z standard errors of the pixel average
+  // (scaled with the variance at each end).
+  auto bounds = [&](const Sums& s, double se, double& low, std::optional<double>& high) {
     const auto [mn, mx] = s.range(lo, hi);
-    low = mn * std::max(0.0, 1.0 - zq * rse);
-    if (std::isfinite(mx) && std::isfinite(rse)) {
-      high = mx * (1.0 + zq * rse);
+    low = std::max(0.0, mn - zq * se * lo);
+    if (std::isfinite(mx)) {
+      high = mx + zq * se * (std::isfinite(hi) ? hi : 1.0);
     } else {
       high.reset();
     }
   };
-  bounds(m, e.sampling_rse, e.mse_low, e.mse_high);
-  bounds(r, rse_r, e.relmse_low, e.relmse_high);
+  bounds(m, se_m, e.mse_low, e.mse_high);
+  bounds(r, se_r, e.relmse_low, e.relmse_high);
+  // A negative mean of the error terms (SURE biased far below zero: issue 13's HDR-only POV-Ray
+  // frames) is no estimate of a squared error at all: the point value stays (the floor), but
+  // nothing bounds it from above.
+  e.consistent = m.v + m.d >= 0 && r.v + r.d >= 0;
+  if (m.v + m.d < 0) e.mse_high.reset();
+  if (r.v + r.d < 0) e.relmse_high.reset();
 
   // Equivalent spp: plain MC's relMSE falls as 1/spp, so spp' = spp * q / relmse. At variance
-  // scale lambda both q and the scaled part of relmse grow with lambda: eq(lambda) =
-  // spp * q / max(r.v + r.d / lambda, r.f), non-decreasing in lambda.
-  auto eq = [&](double lambda) {
+  // scale lambda, q and the scaled part of relmse grow with lambda, and an error x on the pixel
+  // average adds to relmse: eq(lambda, x) = spp * q / max(r.v + (r.d + x) / lambda, r.f + x /
+  // lambda), non-decreasing in lambda; a non-positive denominator is unbounded.
+  auto eq = [&](double lambda, double err) {
     if (!(q > 0)) return kInf;  // a noise-free frame: plain MC is exact already
     double denom;
     if (lambda <= 0) {
-      denom = r.d > 0 ? kInf : std::max(r.v, r.f);
+      denom = (r.d + err > 0 || err > 0) ? kInf : std::max(r.v, r.f);
     } else if (std::isinf(lambda)) {
       denom = std::max(r.v, r.f);
     } else {
-      denom = std::max(r.v + r.d / lambda, r.f);
+      denom = std::max(r.v + (r.d + err) / lambda, r.f + err / lambda);
     }
     return denom > 0 ? ctx.spp * q / denom : kInf;
   };
-  e.equivalent_spp = e.relmse > 0 ? ctx.spp * q / e.relmse : eq(1.0);
-  e.equivalent_spp_low = eq(lo) / (1.0 + zq * rse_r);
-  const double top = eq(hi);
-  if (std::isfinite(top) && std::isfinite(rse_r) && zq * rse_r < 1.0) {
-    e.equivalent_spp_high = top / (1.0 - zq * rse_r);
-  }
+  e.equivalent_spp = e.relmse > 0 ? ctx.spp * q / e.relmse : eq(1.0, 0.0);
+  e.equivalent_spp_low = r.v + r.d < 0 ? 0.0
+                                       : std::min(eq(lo, zq * se_r * lo),
+                                                  eq(hi, std::isfinite(hi) ? zq * se_r * hi : 0.0));
+  const double top =
+      std::max(eq(lo, -zq * se_r * lo), eq(hi, std::isfinite(hi) ? -zq * se_r * hi : 0.0));
+  if (std::isfinite(top)) e.equivalent_spp_high = top;
   return e;
 }
 

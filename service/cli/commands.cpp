@@ -8,11 +8,14 @@
 
 #include "cli/progress.hpp"
 #include "proden/accumulator.hpp"
+#include "proden/aov.hpp"
 #include "proden/error.hpp"
+#include "proden/error_estimate.hpp"
 #include "proden/io/image_writer.hpp"
 #include "proden/io/network_file.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/metrics.hpp"
+#include "proden/protocol/estimate.hpp"
 #include "proden/protocol/json.hpp"
 
 #ifndef PRODEN_VERSION
@@ -29,6 +32,7 @@ io::ReadOptions read_options(const InputOptions& in) {
   r.renderer = in.renderer;
   r.spp = in.spp;
   r.features = in.features;
+  r.view_layer = in.view_layer;
   return r;
 }
 
@@ -39,20 +43,33 @@ void report(const InputError& e) {
 // Accumulates passes into a frame; rejected files are reported and leave the frame untouched.
 struct Accumulated {
   FrameAccumulator frame;
+  AovAccumulator aovs;
+  io::PassInfo first;  // what the first accepted pass was read as
   int rejected = 0;
 };
 
 Accumulated accumulate(const std::vector<std::string>& files, const InputOptions& input,
-                       const std::string& what, bool progress) {
+                       const std::string& what, bool progress, bool aovs = false) {
   Accumulated a;
+  std::vector<AovChannel> pass_aovs;
   Progress bar(what, static_cast<int>(files.size()), progress);
   const auto options = read_options(input);
   for (const auto& f : files) {
     bar.step(f);
     try {
       io::PassInfo info;
-      const Pass pass = io::read_pass(f, options, &info);
+      const Pass pass = io::read_pass(f, options, &info, aovs ? &pass_aovs : nullptr);
       const AddResult r = a.frame.add(pass, f);
+      if (aovs) a.aovs.add(pass_aovs, pass.spp, info.aov_attributes);
+      if (a.frame.passes() == 1) {
+        a.first = info;
+        if (info.layers.size() > 1 && input.view_layer.empty()) {
+          std::string all;
+          for (const auto& l : info.layers) all += (all.empty() ? "" : ", ") + l;
+          spdlog::warn("{}: view layers {}; reading {} (the first; --view-layer chooses)", f, all,
+                       info.layer);
+        }
+      }
       if (r.dropped_pixels > 0) {
         spdlog::warn("{}: {} pixel(s) with NaN/Inf samples dropped from this pass", f,
                      r.dropped_pixels);
@@ -92,7 +109,7 @@ int run_denoise(const DenoiseOptions& o) {
     spdlog::error("--weights needs --mixer network");
     return kUsage;
   }
-  Accumulated a = accumulate(o.passes, o.input, "accumulate", o.progress);
+  Accumulated a = accumulate(o.passes, o.input, "accumulate", o.progress, o.renderer_aovs);
   if (a.frame.empty()) {
     spdlog::error("no usable pass among {} file(s); nothing written", o.passes.size());
     return kBadInput;
@@ -101,6 +118,14 @@ int run_denoise(const DenoiseOptions& o) {
   const FrameEstimate est =
       a.frame.estimate({.halves = false, .features = o.input.features && o.pipeline.features});
   const PipelineResult res = run_pipeline(est, o.pipeline, nullptr, mixer.get());
+  ErrorContext ectx;
+  ectx.spp = a.frame.total_spp();
+  ectx.passes = a.frame.passes();
+  ectx.variance_source = est.variance_source;
+  ectx.noise_scope =
+      a.first.renderer == io::Renderer::cycles ? NoiseScope::pixel : NoiseScope::frame;
+  const EstimatedError error = estimate_error(
+      {&est.mean, &est.variance, &res.result, &res.denoised, &res.alpha, &res.sure}, ectx);
   const auto t2 = Clock::now();
 
   // What the run actually used, in the paper's Table 1 terms (HDR, +VAR, +ALB+NRM).
@@ -116,6 +141,8 @@ int run_denoise(const DenoiseOptions& o) {
     io::add_layer(channels, "sure.", res.sure);
     io::add_layer(channels, "mixvariance.", res.mix_variance);
   }
+  const std::vector<AovChannel> aov_planes = a.aovs.result();
+  io::add_aovs(channels, aov_planes);
   io::WriteOptions w;
   w.half = o.half;
   w.attributes = {
@@ -130,7 +157,10 @@ int run_denoise(const DenoiseOptions& o) {
       {"proden:t_test", o.pipeline.t_test ? "on" : "off"},
       {"proden:variance_source", std::string(protocol::to_string(est.variance_source))},
       {"proden:low_confidence", est.low_confidence() ? "true" : "false"},
+      {"proden:estimated_error", protocol::to_json(error).dump()},
   };
+  if (!a.first.layer.empty()) w.attributes.emplace_back("proden:view_layer", a.first.layer);
+  w.attributes.insert(w.attributes.end(), a.aovs.attributes().begin(), a.aovs.attributes().end());
   try {
     io::write_image(o.out, a.frame.width(), a.frame.height(), channels, w);
   } catch (const std::exception& e) {
@@ -164,6 +194,15 @@ int run_denoise(const DenoiseOptions& o) {
                      {"tile", o.pipeline.tile},      {"halo", res.halo},
                      {"noise_free", res.noise_free}};
     if (!weights_source.empty()) j["pipeline"]["weights"] = weights_source;
+    protocol::put_estimated_error(j, error);
+    j["renderer"] = io::to_string(a.first.renderer);
+    j["view_layer"] = a.first.layer.empty() ? json() : json(a.first.layer);
+    j["view_layers"] = a.first.layers;
+    json aovs = json::array();
+    for (const auto& [name, mode] : a.aovs.channels()) {
+      aovs.push_back({{"name", name}, {"mode", to_string(mode)}});
+    }
+    j["aovs"] = aovs;
     if (o.timings) j["timings"] = timings;
     std::cout << j.dump(2) << "\n";
   } else {
@@ -258,8 +297,14 @@ int run_info(const InfoOptions& o) {
         all.push_back(protocol::to_json(info));
       } else {
         std::printf("%s\n", f.c_str());
+        std::string layers;
+        for (const auto& l : info.layers) layers += (layers.empty() ? "" : ", ") + l;
         std::printf("  renderer   %s%s\n", std::string(io::to_string(info.renderer)).c_str(),
-                    info.layer.empty() ? "" : (" (view layer " + info.layer + ")").c_str());
+                    info.layer.empty()
+                        ? ""
+                        : (" (view layer " + info.layer +
+                           (info.layers.size() > 1 ? " of " + layers : std::string()) + ")")
+                              .c_str());
         std::printf("  format     %s, %d subimage(s), %s colour\n", info.format.c_str(),
                     info.subimages, info.pixel_type.c_str());
         std::printf("  size       %dx%d\n", info.width, info.height);
@@ -270,6 +315,9 @@ int run_info(const InfoOptions& o) {
         std::string names;
         for (const auto& c : info.channels) names += (names.empty() ? "" : ", ") + c;
         std::printf("  channels   %s\n", names.c_str());
+        std::string aovs;
+        for (const auto& c : info.aovs) aovs += (aovs.empty() ? "" : ", ") + c;
+        if (!aovs.empty()) std::printf("  aovs       %s\n", aovs.c_str());
       }
     } catch (const InputError& e) {
       report(e);

@@ -8,6 +8,7 @@
 #include <memory>
 
 #include "cli/commands.hpp"
+#include "cli/wait.hpp"
 #include "daemon/serve.hpp"
 
 namespace {
@@ -22,6 +23,9 @@ void add_input_options(CLI::App* cmd, cli::InputOptions& in, std::string& render
       ->check(CLI::PositiveNumber);
   cmd->add_flag("!--no-features", in.features,
                 "Ignore albedo/normal/depth even if the passes carry them");
+  cmd->add_option("--view-layer", in.view_layer,
+                  "Blender view layer to read from multilayer EXRs (default: the "
+                  "alphabetically first)");
 }
 
 }  // namespace
@@ -92,6 +96,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0, 16))
       ->capture_default_str();
   d->add_flag("--timings", den.timings, "Print the time of each stage");
+  d->add_flag(
+      "!--no-renderer-aovs", den.renderer_aovs,
+      "Do not accumulate the passes' AOVs (Combined.A, Depth, Mist, ...) beside the result");
 
   cli::EvalOptions ev;
   auto* e = app.add_subcommand("eval", "Error metrics (RMSE, relMSE, SMAPE) against a reference");
@@ -111,6 +118,21 @@ int main(int argc, char** argv) {
   add_input_options(i, inf.input, renderer);
   i->add_option("files", inf.files, "Pass files")->required();
   i->add_flag("--json", inf.json, "JSON output");
+
+  cli::WaitOptions wt;
+  auto* w = app.add_subcommand(
+      "wait",
+      "Block until a frame on a running `proden serve` is converged or has a version > K "
+      "(exit 0; 4 timeout, 5 no such job, 6 daemon unreachable)");
+  w->add_option("--job", wt.job, "Job id")->required();
+  w->add_option("--frame", wt.frame, "Frame number")->required()->check(CLI::NonNegativeNumber);
+  w->add_option("--until", wt.until, "converged (default) or version>K")->capture_default_str();
+  w->add_option("--timeout", wt.timeout, "Seconds to wait (default: no limit)")
+      ->check(CLI::NonNegativeNumber);
+  w->add_option("--url", wt.url, "Daemon URL (default: $PRODEN_URL or http://127.0.0.1:8080)");
+  w->add_option("--token-file", wt.token_file, "Bearer token file");
+  w->add_flag("--json", wt.json, "Print the frame status as JSON");
+  w->add_flag("-q,--quiet", wt.quiet, "Print nothing; the exit code says");
 
   proden::daemon::add_serve_command(app);  // `proden serve`: runs the daemon and exits
 
@@ -143,6 +165,7 @@ int main(int argc, char** argv) {
     if (d->parsed()) return cli::run_denoise(den);
     if (e->parsed()) return cli::run_eval(ev);
     if (i->parsed()) return cli::run_info(inf);
+    if (w->parsed()) return cli::run_wait(wt);
   } catch (const std::exception& ex) {
     spdlog::critical("internal error: {}", ex.what());
     return cli::kInternalError;

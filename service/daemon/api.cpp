@@ -239,16 +239,30 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
     if (m != http::verb::get) not_allowed("GET");
     return {json_response(200, protocol::to_json(engine_.frame(id, frame), true))};
   }
+  if (n == 7 && p[6] == "versions") {
+    if (m != http::verb::get) not_allowed("GET");
+    return {json_response(200, engine_.versions(id, frame))};
+  }
   if (n == 7 && p[6] == "image") {
     if (m != http::verb::get) not_allowed("GET");
     const std::string format = query.count("format") ? query.at("format") : "exr";
     const std::string layer = query.count("layer") ? query.at("layer") : "";
-    const auto img = engine_.image(id, frame, format, layer);
+    std::optional<std::uint64_t> version;
+    if (query.count("version")) {
+      const std::string& v = query.at("version");
+      if (v.empty() || v.size() > 18 || !std::all_of(v.begin(), v.end(), ::isdigit) ||
+          std::stoull(v) == 0) {
+        throw ApiError(400, "invalid_parameter", "version must be a positive integer");
+      }
+      version = std::stoull(v);
+    }
+    const auto img = engine_.image(id, frame, format, layer, version);
     auto bytes = read_file(img.path);
     if (!bytes) throw ApiError(404, "not_found", "published image is not readable");
     Response r{http::status::ok, 11};
     r.set(http::field::content_type, img.content_type);
     r.set(http::field::cache_control, "no-cache");
+    r.set("X-Proden-Version", std::to_string(img.version));
     r.body().assign(reinterpret_cast<const char*>(bytes->data()), bytes->size());
     return {r};
   }

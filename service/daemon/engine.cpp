@@ -7,6 +7,7 @@
 #include <random>
 
 #include "daemon/processor.hpp"
+#include "daemon/versions.hpp"
 #include "proden/io/pass_reader.hpp"
 
 namespace proden::daemon {
@@ -176,7 +177,10 @@ void Engine::evict() {
   if (resident.size() <= limit) return;
   std::sort(resident.begin(), resident.end(),
             [](const auto& a, const auto& b) { return a.first < b.first; });
-  for (std::size_t i = 0; i + limit < resident.size(); ++i) resident[i].second->acc.reset();
+  for (std::size_t i = 0; i + limit < resident.size(); ++i) {
+    resident[i].second->acc.reset();
+    resident[i].second->aovs.reset();
+  }
 }
 
 bool Engine::wait_idle(int timeout_ms) {
@@ -200,7 +204,9 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
     }
     fr.pending.clear();
     in.acc = std::move(fr.acc);
+    in.aovs = std::move(fr.aovs);
     fr.acc.reset();
+    fr.aovs.reset();
     in.record = fr.rec;
     in.has_state = fr.has_state;
     in.republish = fr.published_version < fr.rec.version;
@@ -240,6 +246,7 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
     }
   } else if (out.result == FrameRun::Result::done) {
     fr.acc = out.acc;
+    fr.aovs = out.aovs;
     fr.last_used = ++use_clock_;
   }
   if (!fr.pending.empty()) enqueue(*job, frame_no);
@@ -484,7 +491,39 @@ protocol::FrameStatus Engine::status(const Job& job, const Frame& fr) const {
     if (job.spec.output.png) s.outputs.push_back(base + ".png");
   }
   s.pending = scheduler_->busy(job.spec.id, fr.rec.frame) || !fr.pending.empty();
+  s.estimated_error = fr.rec.estimated_error;
+  s.converged = fr.rec.convergence.converged();
+  s.convergence = fr.rec.convergence.to_api(job.spec.target, job.spec.min_passes);
+  s.renderer = fr.rec.renderer;
+  s.view_layer = fr.rec.view_layer;
+  s.view_layers = fr.rec.view_layers;
+  s.aovs = fr.rec.aovs;
+  for (auto it = fr.rec.versions.rbegin(); it != fr.rec.versions.rend(); ++it) {
+    if (it->version <= fr.published_version) s.versions.push_back(it->version);
+  }
   return s;
+}
+
+json Engine::versions(const std::string& id, long frame) const {
+  std::lock_guard lock(mu_);
+  auto job = find(id);
+  auto it = job->frames.find(frame);
+  if (it == job->frames.end()) {
+    throw ApiError(404, "not_found", "job " + id + " has no frame " + std::to_string(frame));
+  }
+  const Frame& fr = it->second;
+  json list = json::array();
+  for (auto v = fr.rec.versions.rbegin(); v != fr.rec.versions.rend(); ++v) {
+    if (v->version > fr.published_version) continue;
+    json e = to_json(*v);
+    e["path"] = version_file(job->spec, frame, v->version).string();
+    list.push_back(e);
+  }
+  return {{"job", id},
+          {"frame", frame},
+          {"latest", fr.published_version},
+          {"history", job->spec.output.history},
+          {"versions", list}};
 }
 
 std::vector<protocol::FrameStatus> Engine::frames(const std::string& id) const {
@@ -510,7 +549,7 @@ protocol::FrameStatus Engine::frame(const std::string& id, long frame) const {
 }
 
 Engine::ImageFile Engine::image(const std::string& id, long frame, const std::string& format,
-                                const std::string& layer) {
+                                const std::string& layer, std::optional<std::uint64_t> wanted) {
   PreviewCache::check_request(format, layer);
   fs::path exr;
   std::uint64_t version = 0;
@@ -521,10 +560,32 @@ Engine::ImageFile Engine::image(const std::string& id, long frame, const std::st
     if (it == job->frames.end() || it->second.published_version == 0) {
       throw ApiError(404, "not_found", "frame " + std::to_string(frame) + " has no version yet");
     }
-    version = it->second.published_version;
+    const Frame& fr = it->second;
+    version = fr.published_version;
     exr = output_base(job->spec, frame).string() + ".exr";
+    if (wanted && *wanted != version) {
+      const bool kept = *wanted < version &&
+                        std::any_of(fr.rec.versions.begin(), fr.rec.versions.end(),
+                                    [&](const VersionEntry& v) { return v.version == *wanted; });
+      if (!kept) {
+        std::string have;
+        for (auto v = fr.rec.versions.rbegin(); v != fr.rec.versions.rend(); ++v) {
+          if (v->version <= version)
+            have += (have.empty() ? "" : ", ") + std::to_string(v->version);
+        }
+        throw ApiError(404, "version_not_available",
+                       "frame " + std::to_string(frame) + " has no version " +
+                           std::to_string(*wanted) + " (kept: " + have + ")");
+      }
+      version = *wanted;
+      exr = version_file(job->spec, frame, version);
+    }
   }
-  return previews_.get(store_.cache_dir(id), exr, frame, version, format, layer);
+  ImageFile f;
+  static_cast<PreviewCache::File&>(f) =
+      previews_.get(store_.cache_dir(id), exr, frame, version, format, layer);
+  f.version = version;
+  return f;
 }
 
 }  // namespace proden::daemon

@@ -14,6 +14,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <string>
 #include <vector>
@@ -60,9 +61,14 @@ class Engine {
                         const std::string& body);
   std::vector<protocol::FrameStatus> frames(const std::string& id) const;
   protocol::FrameStatus frame(const std::string& id, long frame) const;
-  using ImageFile = PreviewCache::File;
+  struct ImageFile : PreviewCache::File {
+    std::uint64_t version = 0;  // the version served
+  };
+  // The latest version, or `version` if given (404 version_not_available when not kept).
   ImageFile image(const std::string& id, long frame, const std::string& format,
-                  const std::string& layer);
+                  const std::string& layer, std::optional<std::uint64_t> version = {});
+  // GET .../frames/{frame}/versions (docs/api.md, "Versions").
+  nlohmann::json versions(const std::string& id, long frame) const;
   // Blocks until no frame is queued or running (tests, benchmarks); false on timeout.
   bool wait_idle(int timeout_ms);
 
@@ -76,6 +82,7 @@ class Engine {
     std::set<std::string> ingested, inflight;
     std::map<std::string, int> attempts;
     std::shared_ptr<FrameAccumulator> acc;  // resident state (LRU-bounded)
+    std::shared_ptr<AovAccumulator> aovs;   // its renderer AOVs (resident with acc)
     std::uint64_t last_used = 0;
     bool has(const std::string& pass) const {
       return ingested.count(pass) || pending.count(pass) || inflight.count(pass);

@@ -8,9 +8,12 @@
 
 #include "daemon/files.hpp"
 #include "daemon/processor.hpp"
+#include "daemon/versions.hpp"
 #include "proden/error.hpp"
+#include "proden/error_estimate.hpp"
 #include "proden/hash.hpp"
 #include "proden/io/pass_reader.hpp"
+#include "proden/protocol/estimate.hpp"
 #include "proden/protocol/json.hpp"
 
 #ifndef PRODEN_VERSION
@@ -29,12 +32,26 @@ double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
+// The frame status fields an event repeats.
+json frame_event(const protocol::JobSpec& spec, const FrameRecord& rec) {
+  json d = {{"job", spec.id},
+            {"name", spec.name},
+            {"frame", rec.frame},
+            {"version", rec.version},
+            {"passes", rec.passes},
+            {"spp", rec.spp},
+            {"updated", rec.updated},
+            {"estimated_mse", rec.estimated_mse},
+            {"estimated_error", rec.estimated_error},
+            {"converged", rec.convergence.converged()}};
+  return d;
+}
+
 }  // namespace
 
 fs::path output_base(const protocol::JobSpec& spec, long frame) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "_%04ld", frame);
-  return fs::path(spec.output.dir) / (spec.name + buf);
+  return fs::path(spec.output.dir) /
+         protocol::expand_output_name(spec.output.name, spec.name, frame);
 }
 
 bool pass_less(const std::string& a, const std::string& b) {
@@ -69,6 +86,7 @@ FrameRun::Outcome FrameRun::run(Input in) {
   const long frame_no = in.frame;
   FrameRecord rec = std::move(in.record);
   std::shared_ptr<FrameAccumulator> acc = std::move(in.acc);
+  std::shared_ptr<AovAccumulator> aovs = std::move(in.aovs);
   std::vector<PendingPass>& batch = in.batch;
   std::sort(batch.begin(), batch.end(),
             [](const PendingPass& a, const PendingPass& b) { return pass_less(a.pass, b.pass); });
@@ -76,10 +94,11 @@ FrameRun::Outcome FrameRun::run(Input in) {
 
   // 1. The frame's state: resident, persisted, or new.
   try {
-    if (!acc) {
+    if (!acc || !aovs) {
+      aovs = std::make_shared<AovAccumulator>();
       if (in.has_state) {
         const auto t0 = Clock::now();
-        acc = std::make_shared<FrameAccumulator>(store_.load_frame(job_id, frame_no));
+        acc = std::make_shared<FrameAccumulator>(store_.load_frame(job_id, frame_no, aovs.get()));
         metrics_.observe("proden_stage_duration_seconds", "load", seconds_since(t0));
       } else {
         acc = std::make_shared<FrameAccumulator>();
@@ -90,13 +109,15 @@ FrameRun::Outcome FrameRun::run(Input in) {
     metrics_.inc("proden_errors_total", "corrupt_state");
     publish_error(events_, job_id, frame_no, "", state_file.string(), "corrupt_state", e.what(),
                   false);
-    return {Result::state_unreadable, nullptr};
+    return {Result::state_unreadable, nullptr, nullptr};
   }
 
   // 2. Read and accumulate each pass; a pass that fails is reported and left out.
   io::ReadOptions ro;
   ro.renderer = io::parse_renderer(spec.renderer).value_or(io::Renderer::automatic);
   ro.spp = spec.spp;
+  ro.view_layer = spec.view_layer;
+  std::vector<AovChannel> pass_aovs;
   std::vector<protocol::PassIdentity> accepted;
   std::uint64_t accepted_bytes = 0;
   for (const auto& p : batch) {
@@ -114,10 +135,20 @@ FrameRun::Outcome FrameRun::run(Input in) {
       protocol::PassIdentity id{p.pass, p.path.string(), size, mt,
                                 hash_bytes(std::span<const unsigned char>(*bytes))};
       bytes.reset();
-      const Pass pass = io::read_pass(p.path.string(), ro);
+      io::PassInfo info;
+      pass_aovs.clear();
+      const Pass pass =
+          io::read_pass(p.path.string(), ro, &info, spec.output.aovs ? &pass_aovs : nullptr);
       metrics_.observe("proden_stage_duration_seconds", "read", seconds_since(t0));
       t0 = Clock::now();
       const AddResult r = acc->add(pass, p.pass);
+      // The colour was accepted: its AOVs follow (same size; nothing in add() throws then).
+      aovs->add(pass_aovs, pass.spp, info.aov_attributes);
+      if (rec.renderer.empty()) {
+        rec.renderer = std::string(io::to_string(info.renderer));
+        rec.view_layer = info.layer;
+        rec.view_layers = info.layers;
+      }
       metrics_.observe("proden_stage_duration_seconds", "accumulate", seconds_since(t0));
       if (r.dropped_pixels > 0) {
         spdlog::warn("{}: {} non-finite pixel(s) dropped", p.path.string(), r.dropped_pixels);
@@ -129,14 +160,20 @@ FrameRun::Outcome FrameRun::run(Input in) {
     }
   }
 
-  if (accepted.empty() && !in.republish) return {Result::done, acc};
+  if (accepted.empty() && !in.republish) return {Result::done, acc, aovs};
 
   // 3. Commit (persist), then publish.
+  std::vector<VersionEntry> dropped_versions;
   try {
     auto t0 = Clock::now();
     const FrameEstimate est = acc->estimate({.halves = false, .features = true});
     metrics_.observe("proden_stage_duration_seconds", "estimate", seconds_since(t0));
-    const ProcessedFrame out = FrameProcessor::process(est, spec.pipeline);
+    ErrorContext ectx;
+    ectx.spp = acc->total_spp();
+    ectx.passes = acc->passes();
+    ectx.variance_source = est.variance_source;
+    ectx.noise_scope = rec.renderer == "cycles" ? NoiseScope::pixel : NoiseScope::frame;
+    const ProcessedFrame out = FrameProcessor::process(est, spec.pipeline, ectx);
     for (const auto& [stage, s] : out.stage_seconds) {
       metrics_.observe("proden_stage_duration_seconds", stage, s);
     }
@@ -155,9 +192,26 @@ FrameRun::Outcome FrameRun::run(Input in) {
       rec.low_confidence = est.low_confidence();
       rec.digest = acc->state_digest();
       rec.ingested.insert(rec.ingested.end(), accepted.begin(), accepted.end());
+      rec.estimated_error = protocol::to_json(out.error);
+      rec.aovs = json::array();
+      for (const auto& [name, mode] : aovs->channels()) {
+        rec.aovs.push_back({{"name", name}, {"mode", to_string(mode)}});
+      }
+      const auto transition =
+          rec.convergence.update(spec.target, spec.min_passes, rec.passes, rec.low_confidence,
+                                 out.error, rec.version, rec.updated);
+      if (transition == Convergence::Transition::converged) {
+        metrics_.inc("proden_frames_converged_total");
+      } else if (transition == Convergence::Transition::unconverged) {
+        metrics_.inc("proden_frames_unconverged_total");
+      }
+      dropped_versions = add_version(rec.versions,
+                                     {rec.version, rec.passes, rec.spp, rec.updated,
+                                      rec.convergence.converged(), rec.estimated_error},
+                                     spec.output.history);
       t0 = Clock::now();
       // The commit point: statistics and pass identities together, atomically.
-      store_.save_frame(job_id, rec, *acc);
+      store_.save_frame(job_id, rec, *acc, *aovs);
       metrics_.observe("proden_stage_duration_seconds", "persist", seconds_since(t0));
       hooks_.committed(rec, accepted);
       metrics_.inc("proden_passes_ingested_total", {}, static_cast<double>(accepted.size()));
@@ -171,41 +225,60 @@ FrameRun::Outcome FrameRun::run(Input in) {
     }
     t0 = Clock::now();
     fs::create_directories(spec.output.dir);
-    const std::vector<std::pair<std::string, std::string>> attrs = {
+    std::vector<std::pair<std::string, std::string>> attrs = {
         {"Software", std::string("proden ") + PRODEN_VERSION},
         {"proden:passes", std::to_string(rec.passes)},
         {"proden:spp", std::to_string(rec.spp)},
         {"proden:inputs", rec.inputs},
         {"proden:variance_source", rec.variance_source},
         {"proden:low_confidence", rec.low_confidence ? "true" : "false"},
+        {"proden:version", std::to_string(rec.version)},
+        {"proden:estimated_error", rec.estimated_error.dump()},
+        {"proden:converged", rec.convergence.converged() ? "true" : "false"},
     };
-    const auto outputs =
-        FrameProcessor::publish(out, output_base(spec, frame_no).string(), spec.output.png, attrs);
+    if (!rec.view_layer.empty()) attrs.emplace_back("proden:view_layer", rec.view_layer);
+    const auto outputs = FrameProcessor::publish(out, output_base(spec, frame_no).string(),
+                                                 spec.output.png, attrs, aovs.get());
+    // Every version stays addressable (docs/api.md, "Versions").
+    keep_version(outputs.front(), version_file(spec, frame_no, rec.version));
+    for (const auto& v : dropped_versions) {
+      std::error_code ec;
+      fs::remove(version_file(spec, frame_no, v.version), ec);
+    }
     store_.save_published(job_id, frame_no, rec.version);
     metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
     hooks_.published(rec.version, outputs);
     metrics_.inc("proden_frame_updates_total");
-    json data = {{"job", job_id},
-                 {"name", spec.name},
-                 {"frame", frame_no},
-                 {"version", rec.version},
-                 {"passes", rec.passes},
-                 {"spp", rec.spp},
-                 {"new_passes", accepted.size()},
-                 {"estimated_mse", rec.estimated_mse},
-                 {"updated", rec.updated},
-                 {"outputs", outputs}};
+    json data = frame_event(spec, rec);
+    data["new_passes"] = accepted.size();
+    data["outputs"] = outputs;
     events_.publish("frame", data);
+    // The convergence change of this version, announced once it is published (again after a
+    // crash between commit and publish: at least once).
+    if (const auto t = rec.convergence.transition_at(rec.version);
+        t != Convergence::Transition::none) {
+      json ev = frame_event(spec, rec);
+      ev["target"] = spec.target ? protocol::to_json(*spec.target) : json();
+      ev["min_passes"] = spec.min_passes;
+      if (t == Convergence::Transition::unconverged) {
+        ev["reason"] =
+            "version " + std::to_string(rec.version) + " misses the target with confidence";
+      }
+      events_.publish(t == Convergence::Transition::converged ? "converged" : "unconverged", ev);
+      spdlog::info("job {} frame {}: {} at version {}", job_id, frame_no,
+                   t == Convergence::Transition::converged ? "converged" : "unconverged",
+                   rec.version);
+    }
     spdlog::info("job {} frame {}: version {} ({} pass(es), {} spp)", job_id, frame_no, rec.version,
                  rec.passes, rec.spp);
-    return {Result::done, acc};
+    return {Result::done, acc, aovs};
   } catch (const std::exception& e) {
     // Persist or publish failed (disk full, permissions): drop the resident state so the next
     // run reloads what is on disk; passes not persisted are offered again by the watcher.
     spdlog::error("job {} frame {}: {}", job_id, frame_no, e.what());
     metrics_.inc("proden_errors_total", "publish");
     publish_error(events_, job_id, frame_no, "", "", "publish", e.what(), false);
-    return {Result::failed, nullptr};
+    return {Result::failed, nullptr, nullptr};
   }
 }
 

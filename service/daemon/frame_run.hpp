@@ -19,11 +19,12 @@
 #include "daemon/metrics.hpp"
 #include "daemon/quarantine.hpp"
 #include "proden/accumulator.hpp"
+#include "proden/aov.hpp"
 #include "proden/protocol/api.hpp"
 
 namespace proden::daemon {
 
-// <output.dir>/<name>_<frame, 4+ digits>: the published files are this plus .exr (and .png).
+// <output.dir>/<output.name expanded>: the published files are this plus .exr (and .png).
 std::filesystem::path output_base(const protocol::JobSpec& spec, long frame);
 
 // Natural order of pass names: numbers numerically, then names (the order passes accumulate in).
@@ -56,6 +57,7 @@ class FrameRun {
     bool has_state = false;
     bool republish = false;                 // the persisted version is not published yet
     std::shared_ptr<FrameAccumulator> acc;  // resident state, or null (loaded from the store)
+    std::shared_ptr<AovAccumulator> aovs;   // its renderer AOVs (resident with acc)
     std::vector<PendingPass> batch;         // passes to read, any order
   };
   enum class Result {
@@ -66,6 +68,7 @@ class FrameRun {
   struct Outcome {
     Result result = Result::done;
     std::shared_ptr<FrameAccumulator> acc;  // the state to keep resident (when done)
+    std::shared_ptr<AovAccumulator> aovs;
   };
   Outcome run(Input in);
 

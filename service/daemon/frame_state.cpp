@@ -25,7 +25,16 @@ std::uint64_t text_hash(const std::string& s) {
 json to_json(const FrameRecord& r) {
   json ingested = json::array();
   for (const auto& p : r.ingested) ingested.push_back(protocol::to_json(p));
+  json versions = json::array();
+  for (const auto& v : r.versions) versions.push_back(to_json(v));
   return {{"frame", r.frame},
+          {"estimated_error", r.estimated_error},
+          {"renderer", r.renderer},
+          {"view_layer", r.view_layer},
+          {"view_layers", r.view_layers},
+          {"aovs", r.aovs},
+          {"convergence", r.convergence.persist()},
+          {"versions", versions},
           {"version", r.version},
           {"updated", r.updated},
           {"estimated_mse", r.estimated_mse},
@@ -57,13 +66,27 @@ FrameRecord frame_record_from_json(const json& j) {
   r.low_confidence = j.at("low_confidence").get<bool>();
   r.digest = j.at("digest").get<std::uint64_t>();
   for (const auto& p : j.at("ingested")) r.ingested.push_back(protocol::pass_identity_from_json(p));
+  // Keys added by issue 13 (absent in older states).
+  r.estimated_error = j.value("estimated_error", json());
+  r.renderer = j.value("renderer", "");
+  r.view_layer = j.value("view_layer", "");
+  r.view_layers = j.value("view_layers", std::vector<std::string>{});
+  r.aovs = j.value("aovs", json::array());
+  r.convergence = Convergence::restore(j.value("convergence", json()));
+  for (const auto& v : j.value("versions", json::array())) {
+    r.versions.push_back(version_entry_from_json(v));
+  }
   return r;
 }
 
 void save_frame_state(const fs::path& path, const FrameRecord& record,
-                      const FrameAccumulator& frame) {
-  const std::string text = to_json(record).dump();
-  const std::vector<std::uint8_t> blob = frame.serialize();
+                      const FrameAccumulator& frame, const AovAccumulator& aovs) {
+  std::vector<std::uint8_t> blob = frame.serialize();
+  json rec = to_json(record);
+  rec["accumulator_bytes"] = blob.size();
+  const std::vector<std::uint8_t> aov_blob = aovs.serialize();
+  blob.insert(blob.end(), aov_blob.begin(), aov_blob.end());
+  const std::string text = rec.dump();
   std::vector<std::uint8_t> out;
   out.reserve(sizeof(kMagic) + 16 + text.size() + blob.size());
   auto put64 = [&out](std::uint64_t v) {
@@ -81,7 +104,7 @@ void save_frame_state(const fs::path& path, const FrameRecord& record,
 namespace {
 
 FrameRecord parse_record(std::span<const std::uint8_t> b, const fs::path& path,
-                         std::size_t* blob_offset) {
+                         std::size_t* blob_offset, std::size_t* accumulator_bytes = nullptr) {
   std::uint64_t n = 0;
   if (b.size() < sizeof kMagic + 8 || std::memcmp(b.data(), kMagic, sizeof kMagic) != 0) {
     throw std::runtime_error(path.string() + ": not a proden frame state");
@@ -97,7 +120,13 @@ FrameRecord parse_record(std::span<const std::uint8_t> b, const fs::path& path,
     throw std::runtime_error(path.string() + ": corrupt frame state record");
   if (blob_offset) *blob_offset = sizeof kMagic + 16 + n;
   try {
-    return frame_record_from_json(json::parse(text));
+    const json j = json::parse(text);
+    if (accumulator_bytes) {
+      *accumulator_bytes = j.contains("accumulator_bytes")
+                               ? j.at("accumulator_bytes").get<std::size_t>()
+                               : b.size() - (sizeof kMagic + 16 + n);
+    }
+    return frame_record_from_json(j);
   } catch (const json::exception& e) {
     throw std::runtime_error(path.string() + ": bad frame state record: " + e.what());
   }
@@ -123,13 +152,16 @@ FrameRecord load_frame_record(const fs::path& path) {
   return parse_record(head, path, nullptr);
 }
 
-FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* record) {
+FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* record,
+                                        AovAccumulator* aovs) {
   auto bytes = read_file(path);
   if (!bytes) throw std::runtime_error(path.string() + ": cannot read");
-  std::size_t offset = 0;
-  FrameRecord r = parse_record(*bytes, path, &offset);
-  FrameAccumulator acc =
-      FrameAccumulator::deserialize(std::span<const std::uint8_t>(*bytes).subspan(offset));
+  std::size_t offset = 0, acc_bytes = 0;
+  FrameRecord r = parse_record(*bytes, path, &offset, &acc_bytes);
+  const auto rest = std::span<const std::uint8_t>(*bytes).subspan(offset);
+  if (acc_bytes > rest.size()) throw std::runtime_error(path.string() + ": truncated frame state");
+  FrameAccumulator acc = FrameAccumulator::deserialize(rest.first(acc_bytes));
+  if (aovs) *aovs = AovAccumulator::deserialize(rest.subspan(acc_bytes));
   if (acc.state_digest() != r.digest) {
     throw std::runtime_error(path.string() + ": accumulator does not match its record");
   }

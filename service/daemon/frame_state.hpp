@@ -3,7 +3,9 @@
 // is either in both or in neither: counted exactly once.
 //
 // File: "PRDNFRS1", u64 n, n bytes of JSON record, u64 hash(JSON), then the accumulator blob
-// (FrameAccumulator::serialize, self-checksummed). The JSON part can be read without the blob.
+// (FrameAccumulator::serialize, self-checksummed) and the renderer AOVs' blob
+// (AovAccumulator::serialize, self-checksummed; the record's "accumulator_bytes" says where it
+// starts; records without it have no AOVs). The JSON part can be read without the blobs.
 #pragma once
 
 #include <cstdint>
@@ -13,7 +15,10 @@
 
 #include <nlohmann/json.hpp>
 
+#include "daemon/convergence.hpp"
+#include "daemon/versions.hpp"
 #include "proden/accumulator.hpp"
+#include "proden/aov.hpp"
 #include "proden/protocol/api.hpp"
 
 namespace proden::daemon {
@@ -31,16 +36,26 @@ struct FrameRecord {
   bool low_confidence = false;
   std::uint64_t digest = 0;
   std::vector<protocol::PassIdentity> ingested;
+  // Issue 13: the latest version's estimated_error object, what the passes were read as, the
+  // renderer AOVs accumulated, the convergence state and the versions kept.
+  nlohmann::json estimated_error;
+  std::string renderer, view_layer;
+  std::vector<std::string> view_layers;
+  nlohmann::json aovs = nlohmann::json::array();  // [{"name", "mode"}]
+  Convergence convergence;
+  std::vector<VersionEntry> versions;  // oldest first, the latest last
 };
 
 nlohmann::json to_json(const FrameRecord& r);
 FrameRecord frame_record_from_json(const nlohmann::json& j);
 
 void save_frame_state(const std::filesystem::path& path, const FrameRecord& record,
-                      const FrameAccumulator& frame);
+                      const FrameAccumulator& frame, const AovAccumulator& aovs = {});
 // Reads only the JSON record (fast). Throws std::runtime_error on a corrupt file.
 FrameRecord load_frame_record(const std::filesystem::path& path);
-// Reads the record and the accumulator. Throws on a corrupt file.
-FrameAccumulator load_frame_accumulator(const std::filesystem::path& path, FrameRecord* record);
+// Reads the record and the accumulator (and, if `aovs`, the renderer AOVs). Throws on a corrupt
+// file.
+FrameAccumulator load_frame_accumulator(const std::filesystem::path& path, FrameRecord* record,
+                                        AovAccumulator* aovs = nullptr);
 
 }  // namespace proden::daemon

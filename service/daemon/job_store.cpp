@@ -101,8 +101,12 @@ std::optional<JobStore::LoadedJob> JobStore::load_job(
       corrupt(e.what());
     }
   }
-  // Output temp files of an interrupted publish.
-  remove_temp_files(job.spec.output.dir, "." + job.spec.name + "_");
+  // Output temp files of an interrupted publish (and of a kept version).
+  const std::string& tmpl = job.spec.output.name;
+  const std::string stem = tmpl.substr(0, std::min(tmpl.find('#'), tmpl.find("{frame}")));
+  remove_temp_files(job.spec.output.dir,
+                    "." + protocol::expand_output_name(stem, job.spec.name, 0));
+  remove_temp_files(fs::path(job.spec.output.dir) / "versions", ".");
   // Stored uploads not yet accumulated.
   for (fs::recursive_directory_iterator it(dir / "uploads", ec), end; !ec && it != end;
        it.increment(ec)) {
@@ -138,14 +142,15 @@ std::optional<JobStore::LoadedJob> JobStore::load_job(
 // ---- frames ----------------------------------------------------------------------------------
 
 void JobStore::save_frame(const std::string& id, const FrameRecord& record,
-                          const FrameAccumulator& acc) {
+                          const FrameAccumulator& acc, const AovAccumulator& aovs) {
   const fs::path p = state_path(id, record.frame);
   hook("state", p);
-  save_frame_state(p, record, acc);
+  save_frame_state(p, record, acc, aovs);
 }
 
-FrameAccumulator JobStore::load_frame(const std::string& id, long frame) const {
-  return load_frame_accumulator(state_path(id, frame), nullptr);
+FrameAccumulator JobStore::load_frame(const std::string& id, long frame,
+                                      AovAccumulator* aovs) const {
+  return load_frame_accumulator(state_path(id, frame), nullptr, aovs);
 }
 
 void JobStore::save_published(const std::string& id, long frame, std::uint64_t version) {

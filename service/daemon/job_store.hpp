@@ -71,8 +71,10 @@ class JobStore {
                                     const std::function<void(const std::string&)>& corrupt);
 
   // ---- frames ----
-  void save_frame(const std::string& id, const FrameRecord& record, const FrameAccumulator& acc);
-  FrameAccumulator load_frame(const std::string& id, long frame) const;
+  void save_frame(const std::string& id, const FrameRecord& record, const FrameAccumulator& acc,
+                  const AovAccumulator& aovs = {});
+  FrameAccumulator load_frame(const std::string& id, long frame,
+                              AovAccumulator* aovs = nullptr) const;
   void save_published(const std::string& id, long frame, std::uint64_t version);
 
   // ---- uploads ----

@@ -29,7 +29,8 @@ bool FrameProcessor::supports(const protocol::PipelineSpec& spec, std::string& w
 }
 
 ProcessedFrame FrameProcessor::process(const FrameEstimate& estimate,
-                                       const protocol::PipelineSpec& spec) {
+                                       const protocol::PipelineSpec& spec,
+                                       const ErrorContext& error_context) {
   ProcessedFrame out;
   out.layers.emplace_back("render", estimate.mean);
   out.layers.emplace_back("variance", estimate.variance);
@@ -40,6 +41,7 @@ ProcessedFrame FrameProcessor::process(const FrameEstimate& estimate,
     for (float x : var) sum += static_cast<double>(x);
     out.estimated_mse = var.empty() ? 0.0 : sum / static_cast<double>(var.size());
     out.estimated_mse_source = "variance";
+    out.error = estimate_error({&estimate.mean, &estimate.variance, &out.result}, error_context);
     return out;
   }
   PipelineOptions options;
@@ -57,6 +59,9 @@ ProcessedFrame FrameProcessor::process(const FrameEstimate& estimate,
   out.stage_seconds = {{"denoise", r.timings.denoise}, {"sure", r.timings.sure},
                        {"mix", r.timings.mixer},       {"ttest", r.timings.ttest},
                        {"compose", r.timings.compose}, {"pipeline", r.timings.wall}};
+  out.error = estimate_error(
+      {&estimate.mean, &estimate.variance, &r.result, &r.denoised, &r.alpha, &r.sure},
+      error_context);
   out.result = std::move(r.result);
   out.layers.emplace_back("denoised", std::move(r.denoised));
   out.layers.emplace_back("alpha", std::move(r.alpha));
@@ -66,7 +71,8 @@ ProcessedFrame FrameProcessor::process(const FrameEstimate& estimate,
 
 std::vector<std::string> FrameProcessor::publish(
     const ProcessedFrame& frame, const std::string& base, bool png,
-    const std::vector<std::pair<std::string, std::string>>& attributes) {
+    const std::vector<std::pair<std::string, std::string>>& attributes,
+    const AovAccumulator* aovs) {
   std::vector<io::NamedChannel> channels;
   io::add_layer(channels, "", frame.result);
   for (const auto& [name, img] : frame.layers) {
@@ -74,6 +80,10 @@ std::vector<std::string> FrameProcessor::publish(
   }
   io::WriteOptions w;
   w.attributes = attributes;
+  const std::vector<AovChannel> aov_planes = aovs ? aovs->result() : std::vector<AovChannel>{};
+  io::add_aovs(channels, aov_planes);
+  if (aovs)
+    w.attributes.insert(w.attributes.end(), aovs->attributes().begin(), aovs->attributes().end());
   std::vector<std::string> written;
   io::write_image(base + ".exr", frame.result.width(), frame.result.height(), channels, w);
   written.push_back(base + ".exr");

@@ -8,6 +8,8 @@
 #include <vector>
 
 #include "proden/accumulator.hpp"
+#include "proden/aov.hpp"
+#include "proden/error_estimate.hpp"
 #include "proden/image.hpp"
 #include "proden/protocol/api.hpp"
 
@@ -18,6 +20,7 @@ struct ProcessedFrame {
   std::vector<std::pair<std::string, Image>> layers;  // "render", "variance", later "denoised"...
   double estimated_mse = 0.0;                         // the pipeline's own error estimate
   std::string estimated_mse_source = "variance";      // "variance" until SURE is available
+  EstimatedError error;  // the estimated_error object (estimate_error(); mse = estimated_mse)
   std::vector<std::pair<std::string, double>> stage_seconds;
 };
 
@@ -25,13 +28,16 @@ class FrameProcessor {
  public:
   // Whether the job's pipeline options name things this build has (why = the reason if not).
   static bool supports(const protocol::PipelineSpec& spec, std::string& why);
-  static ProcessedFrame process(const FrameEstimate& estimate, const protocol::PipelineSpec& spec);
+  static ProcessedFrame process(const FrameEstimate& estimate, const protocol::PipelineSpec& spec,
+                                const ErrorContext& error_context);
 
-  // Writes <base>.exr (R,G,B + each layer as layer.R/G/B) and, if png, <base>.png (tone-mapped
-  // result), atomically. Returns the paths written.
+  // Writes <base>.exr (R,G,B + each layer as layer.R/G/B + the renderer AOVs, if any, with
+  // their header attributes) and, if png, <base>.png (tone-mapped result), atomically. Returns
+  // the paths written, the EXR first.
   static std::vector<std::string> publish(
       const ProcessedFrame& frame, const std::string& base, bool png,
-      const std::vector<std::pair<std::string, std::string>>& attributes);
+      const std::vector<std::pair<std::string, std::string>>& attributes,
+      const AovAccumulator* aovs = nullptr);
 };
 
 // Names of layers a client may request: result, render, variance, denoised, alpha, sure.

@@ -202,3 +202,21 @@ TEST_CASE("estimate_error: refuses missing or mismatched images", "[error_estima
   ctx.confidence = 1.0;
   CHECK_THROWS_AS(estimate_error({&a, &a, &a}, ctx), std::invalid_argument);
 }
+
+TEST_CASE("estimate_error: a negative mean SURE bounds nothing from above", "[error_estimate]") {
+  // SURE far below zero (e.g. HDR-only input, issue 13) with alpha ~ 1: the terms average below 0.
+  const Image truth = smooth_truth(32, 32);
+  const FrameEstimate f = accumulate(truth, 8, 0.1f, 5);
+  Mixed m = mix_with_truth(f, truth, 0.98f);
+  for (auto& s : m.sure.data()) s = -std::abs(s) - 0.05f;
+  ErrorContext ctx{.spp = 32, .passes = 8, .noise_scope = NoiseScope::pixel};
+  const EstimatedError e =
+      estimate_error({&f.mean, &f.variance, &m.z, &m.y, &m.alpha, &m.sure}, ctx);
+  CHECK_FALSE(e.consistent);
+  CHECK_FALSE(e.mse_high);
+  CHECK_FALSE(e.relmse_high);
+  CHECK(e.equivalent_spp_low == 0.0);
+  CHECK_FALSE(meets_relmse(e, 1.0));
+  CHECK_FALSE(meets_equivalent_spp(e, 1.0));
+  CHECK(e.mse > 0.0);  // the floor
+}

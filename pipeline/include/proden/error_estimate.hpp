@@ -56,6 +56,9 @@ struct EstimatedError {
   double confidence = 0.95;
   std::optional<double> dof;  // effective degrees of freedom of the variance scale (nullopt: 0)
   double sampling_rse = 0.0;  // relative standard error of the pixel average of the MSE terms
+  // False when the error terms average below zero (SURE far below zero): the value is then the
+  // floor and has no upper bound (mse_high, relmse_high unbounded, equivalent_spp_low 0).
+  bool consistent = true;
   NoiseScope noise_scope = NoiseScope::frame;
   std::string source = "variance";   // "variance" | "variance+sure"
   std::string calibration = "none";  // what calibrated the model ("none": raw pipeline numbers)

@@ -7,6 +7,7 @@
 #include <utility>
 #include <vector>
 
+#include "proden/aov.hpp"
 #include "proden/image.hpp"
 
 namespace proden::io {
@@ -29,5 +30,9 @@ void write_image(const std::string& path, int width, int height,
 // Appends `prefix + suffix[c]` channels for each plane of `image` ("render." + "R", ...).
 void add_layer(std::vector<NamedChannel>& out, const std::string& prefix, const Image& image,
                std::string_view suffixes = "RGB");
+
+// Appends renderer AOVs (AovAccumulator::result(); they must outlive `out`) under their own
+// names ("A", "Depth.Z", "CryptoObject00.r", ...), beside the result (docs/api.md).
+void add_aovs(std::vector<NamedChannel>& out, const std::vector<AovChannel>& aovs);
 
 }  // namespace proden::io
