@@ -400,7 +400,7 @@ def report(all_rows, out_dir):
     L.append("### Estimated versus true error (what the daemon reports, without a reference)\n")
     L.append("Estimated MSE per frame: render = mean Var[x]; denoised = mean SURE; proden = mean "
              "of the result's SURE, (1-a) Var[x] + a SURE - a (1-a) (y-x)^2, floored at mean "
-             "(1-a)^2 Var[x] (the daemon's `estimated_mse`, `proden::estimated_result_mse`). True MSE = MSE against the reference minus the reference's "
+             "(1-a)^2 Var[x] (the daemon's `estimated_mse`, `PipelineResult::estimated_error`). True MSE = MSE against the reference minus the reference's "
              "own variance. 1.0 is perfect; >1 over-estimates.\n")
     L += agreement_table(all_rows)
     L.append("")

@@ -248,8 +248,10 @@ int main(int argc, char** argv) {
       tbb::global_control limit(tbb::global_control::max_allowed_parallelism, thr[ti]);
       PipelineOptions o;
       o.divergence = DivergenceMethod::analytic;
+      Pipeline pipeline(o);
+      pipeline.commit();
       const double c0 = cpu_seconds();
-      PipelineResult r = run_pipeline(est, o);
+      PipelineResult r = pipeline.execute(est);
       s.cores_obtained[ti] = (cpu_seconds() - c0) / r.timings.wall;
       s.an[ti] = r.timings;
       s.denoise_only_s[ti] = denoise_only(est, o);
@@ -259,7 +261,9 @@ int main(int argc, char** argv) {
       tbb::global_control limit(tbb::global_control::max_allowed_parallelism, cores);
       PipelineOptions o;
       o.divergence = DivergenceMethod::monte_carlo;
-      s.mc = run_pipeline(est, o).timings;
+      Pipeline pipeline(o);
+      pipeline.commit();
+      s.mc = pipeline.execute(est).timings;
       s.have_mc = true;
     }
     if (io) {

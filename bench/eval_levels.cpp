@@ -6,8 +6,8 @@
 // DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level.
 //
 // Also per level: the pipeline's own error estimates (no reference): mean Var[x] for the render,
-// mean SURE for the denoised image, and for the result proden::estimated_result_mse (what
-// the daemon reports, service/daemon/processor.cpp), and the wall time of a denoise-only run (the
+// mean SURE for the denoised image, and for the result PipelineResult::estimated_error (what
+// the daemon and `proden denoise --json` report), and the wall time of a denoise-only run (the
 // NL-means filter alone, same tiles and threads, no Jacobian) for the "denoise-only" curve.
 #include <tbb/blocked_range2d.h>
 #include <tbb/global_control.h>
@@ -117,13 +117,13 @@ int main(int argc, char** argv) {
   app.add_flag("--json", as_json, "JSON lines output");
   app.add_flag("--no-features", no_features, "Colour only");
   app.add_option("--threads", threads, "Threads (0 = all)");
-  app.add_option("--mixer-radius", po.mixer.radius);
+  app.add_option("--mixer-radius", po.closed_form.radius);
   app.add_option("--pool", po.variance_pool_radius);
   app.add_option("--t0", po.ttest.t0);
   bool no_dof = false;
   app.add_flag("--no-ttest-dof", no_dof,
                "The authors' fixed t0 (no degrees-of-freedom correction)");
-  app.add_option("--variance-floor", po.mixer.variance_floor);
+  app.add_option("--variance-floor", po.closed_form.variance_floor);
   std::string weight = "relative";  // the library default (ClosedFormParams)
   app.add_option("--mixer-weight", weight)
       ->check(CLI::IsMember({"uniform", "variance", "relative"}));
@@ -143,21 +143,29 @@ int main(int argc, char** argv) {
   app.add_option("--mixer", mixer_kind)->check(CLI::IsMember({"closed-form", "network"}));
   app.add_option("--weights", weights, "Network weights (.pdnw; default: built-in)");
   CLI11_PARSE(app, argc, argv);
-  std::unique_ptr<Mixer> mixer;
-  if (mixer_kind == "network") {
-    mixer = std::make_unique<network::NetworkMixer>(io::load_network(weights));
+  po.mixer = mixer_kind == "network" ? MixerKind::network : MixerKind::closed_form;
+  if (!weights.empty()) {
+    po.weights = io::read_weights_file(weights);
+    po.weights_source = weights;
   }
   po.t_test = !no_ttest;
   po.ttest.dof_correction = !no_dof;
   po.features = !no_features;
-  po.mixer.weight = weight == "uniform"    ? WindowWeight::uniform
-                    : weight == "relative" ? WindowWeight::relative
-                                           : WindowWeight::variance;
-  po.denoiser = den == "gaussian" ? BuiltinDenoiser::gaussian : BuiltinDenoiser::nlmeans;
-  po.mixer.rule = rule == "stein" ? ClosedFormRule::stein : ClosedFormRule::inverse_error;
+  po.closed_form.weight = weight == "uniform"    ? WindowWeight::uniform
+                          : weight == "relative" ? WindowWeight::relative
+                                                 : WindowWeight::variance;
+  po.denoiser = den;
+  po.closed_form.rule = rule == "stein" ? ClosedFormRule::stein : ClosedFormRule::inverse_error;
   po.divergence = divergence == "analytic" ? DivergenceMethod::analytic
                   : divergence == "mc"     ? DivergenceMethod::monte_carlo
                                            : DivergenceMethod::automatic;
+  Pipeline pipeline(po);
+  try {
+    pipeline.commit();
+  } catch (const PipelineError& e) {
+    std::fprintf(stderr, "%s\n", e.what());
+    return 2;
+  }
   std::unique_ptr<tbb::global_control> limit;
   if (threads > 0) {
     limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
@@ -206,10 +214,10 @@ int main(int argc, char** argv) {
     const FrameAccumulator f = accumulate(files, !no_features);
     const FrameEstimate est = f.estimate({.halves = false, .features = !no_features});
     const auto t1 = std::chrono::steady_clock::now();
-    const PipelineResult r = run_pipeline(est, po, nullptr, mixer.get());
+    const PipelineResult r = pipeline.execute(est);
     const double acc_s = std::chrono::duration<double>(t1 - t0).count();
     const double den_only_s =
-        po.denoiser == BuiltinDenoiser::nlmeans
+        po.denoiser == "nlmeans"
             ? denoise_only_seconds(est, po, nullptr)
             : r.timings.wall * r.timings.denoise /
                   std::max(1e-12, r.timings.denoise + r.timings.sure + r.timings.mixer +
@@ -226,7 +234,7 @@ int main(int argc, char** argv) {
         {"result", metrics_json(r.result, ref_est.mean, ref_var)},
         {"estimated_mse_render", mean_of(est.variance)},
         {"estimated_mse_denoised", mean_of(r.sure)},
-        {"estimated_mse_result", estimated_result_mse(est.mean, est.variance, r)},
+        {"estimated_mse_result", r.estimated_error.mse},
         {"reference_mean_variance", ref_var},
         {"seconds",
          {{"read_accumulate", acc_s},

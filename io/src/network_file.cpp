@@ -8,13 +8,16 @@
 
 namespace proden::io {
 
-std::shared_ptr<const network::PdNet> load_network(const std::string& path) {
-  if (path.empty()) return network::builtin_network();
+std::vector<unsigned char> read_weights_file(const std::string& path) {
   std::ifstream f(path, std::ios::binary);
   if (!f) throw network::WeightsError(path + ": cannot be opened");
-  const std::vector<unsigned char> bytes((std::istreambuf_iterator<char>(f)),
-                                         std::istreambuf_iterator<char>());
-  return std::make_shared<const network::PdNet>(network::parse_weights(bytes, path), path);
+  return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
+}
+
+std::shared_ptr<const network::PdNet> load_network(const std::string& path) {
+  if (path.empty()) return network::builtin_network();
+  return std::make_shared<const network::PdNet>(
+      network::parse_weights(read_weights_file(path), path), path);
 }
 
 }  // namespace proden::io

@@ -101,14 +101,19 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
       double prev[2] = {0, 0};
       for (int px = 0; px < W; ++px) {
         const std::size_t i = static_cast<std::size_t>(py) * W + px;
-        const double v = std::max(0.0, static_cast<double>(vv[i]));
+        // Non-finite values count as 0, as the pipeline's stages see them.
+        const double v = std::isfinite(vv[i]) ? std::max(0.0, static_cast<double>(vv[i])) : 0.0;
         const double z = zv[i];
-        const double w = 1.0 / (z * z + kRelEps);
+        const double w = std::isfinite(z) ? 1.0 / (z * z + kRelEps) : 0.0;
         double ev = v, ed = 0.0, f = v;
         if (denoised) {
           const double a = av[i], d = static_cast<double>(yv[i]) - xv[i];
-          // e = (1-a) v + a SURE - a (1-a) d^2 (estimated_result_mse) = e_v + e_d with
+          // SURE of z = x + a (y - x) with alpha held fixed: e = (1-a) v + a SURE - a (1-a) d^2
+          // (it keeps the x-y covariance that (1-a)^2 v + a^2 SURE drops) = e_v + e_d with
           // e_v = (1-a) v + a (SURE - d^2) proportional to the variance scale, e_d = a^2 d^2.
+          // The frame mean is taken without per-pixel clamping (that would bias it up, 4-5x on
+          // interior) and floored at mean (1-a)^2 v: MSE(z) >= that when div >= 0, and SURE
+          // biased low (noisy features correlated with x's noise) can take the mean below it.
           ev = (1.0 - a) * v + a * (sv[i] - d * d);
           ed = a * a * d * d;
           f = (1.0 - a) * (1.0 - a) * v;

@@ -1,14 +1,19 @@
 #include "proden/progressive.hpp"
 
 #include <tbb/combinable.h>
+#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <ctime>
 #include <stdexcept>
 #include <vector>
+
+#include "proden/network/pdnet.hpp"
 
 namespace proden {
 namespace {
@@ -30,18 +35,26 @@ double thread_cpu() {
 // Limits beyond which squares of differences would overflow float inside the stages.
 constexpr float kMaxValue = 1e18f;
 constexpr float kMaxVariance = 1e36f;
+// GaussianDenoiser's supported sigmas (its radius 3 sigma must stay <= 64).
+constexpr float kMaxGaussianSigma = 21.0f;
 
-Image sanitized(const Image& img, float lo, float hi) {
-  Image out = img;
-  for (float& v : out.data()) v = std::isfinite(v) ? std::clamp(v, lo, hi) : 0.0f;
-  return out;
+// Copies `src` into `dst` (reusing dst's allocation when the size matches) with non-finite values
+// set to 0 and the rest clamped to [lo, hi].
+void sanitize_into(const Image& src, float lo, float hi, Image& dst) {
+  dst = src;
+  for (float& v : dst.data()) v = std::isfinite(v) ? std::clamp(v, lo, hi) : 0.0f;
 }
 
-// Mean of each pixel's (2r+1)^2 neighbourhood clipped to the image, per channel (separable).
-Image box_mean(const Image& img, int r) {
-  if (r <= 0) return img;
+// Mean of each pixel's (2r+1)^2 neighbourhood clipped to the image, per channel (separable);
+// `tmp` is scratch of img's size.
+void box_mean(const Image& img, int r, Image& tmp, Image& out) {
+  if (r <= 0) {
+    out = img;
+    return;
+  }
   const int W = img.width(), H = img.height();
-  Image tmp(W, H, img.channels()), out(W, H, img.channels());
+  if (!tmp.same_size(img) || tmp.channels() != img.channels()) tmp = Image(W, H, img.channels());
+  out = Image(W, H, img.channels());
   for (int c = 0; c < img.channels(); ++c) {
     for (int y = 0; y < H; ++y) {
       for (int x = 0; x < W; ++x) {
@@ -60,7 +73,6 @@ Image box_mean(const Image& img, int r) {
       }
     }
   }
-  return out;
 }
 
 bool all_zero(const Image& img) {
@@ -68,7 +80,136 @@ bool all_zero(const Image& img) {
   return std::all_of(d.begin(), d.end(), [](float v) { return v == 0.0f; });
 }
 
+// A denoiser's output over a region with what SURE needs: y, dy/dx (analytic divergence only),
+// the divergence and SURE itself.
+struct Denoised {
+  Buffer y, dydx, div, sure;
+  std::size_t floats() const {
+    return y.capacity() + dydx.capacity() + div.capacity() + sure.capacity();
+  }
+};
+
+// Stage 1 over `region`: y and, for the analytic divergence, the Jacobian diagonal.
+void run_denoiser(const Denoiser& denoiser, const DenoiseInputs& din, const Rect& region,
+                  bool analytic, Denoised& d) {
+  d.y.reset(region, 3);
+  d.dydx.reset(analytic ? region : Rect{}, 3);
+  denoiser.denoise(din, region, d.y, analytic ? &d.dydx : nullptr);
+}
+
+// Stage 2 over `region`: the divergence (from the Jacobian diagonal, or Monte-Carlo probes that
+// re-run the denoiser) and SURE.
+void run_sure(const Denoiser& denoiser, const DenoiseInputs& din, const Rect& region, bool analytic,
+              const MonteCarloProbes& probes, Denoised& d) {
+  d.div.reset(region, 3);
+  if (analytic) {
+    divergence_from_derivative(din.variance, d.dydx, region, d.div);
+  } else {
+    divergence_monte_carlo(denoiser, din, region, d.y, probes, d.div);
+  }
+  d.sure.reset(region, 3);
+  sure(din.colour, din.variance, d.y, d.div, region, d.sure);
+}
+
+[[noreturn]] void fail(PipelineOption option, const std::string& message) {
+  throw PipelineError(option, message);
+}
+
+// The registry. A new denoiser is one more entry: its name, a line of help, how to build it from
+// the options, and what it reads of the frame (features, half buffers).
+const DenoiserEntry kDenoisers[] = {
+    {"nlmeans", "feature-guided non-local means with its exact Jacobian",
+     [](const PipelineOptions& o) -> std::unique_ptr<const Denoiser> {
+       NlMeansParams p = o.nlmeans;
+       p.use_features = p.use_features && o.features;
+       return std::make_unique<NlMeansDenoiser>(p);
+     },
+     [](const PipelineOptions& o) {
+       return EstimateOptions{.halves = false, .features = o.features && o.nlmeans.use_features};
+     }},
+    {"gaussian", "a Gaussian blur: fast, biased at edges",
+     [](const PipelineOptions& o) -> std::unique_ptr<const Denoiser> {
+       return std::make_unique<GaussianDenoiser>(o.gaussian_sigma);
+     },
+     [](const PipelineOptions&) { return EstimateOptions{.halves = false, .features = false}; }},
+};
+
+constexpr std::array<std::string_view, 7> kLayerNames = {
+    layer::result, layer::render, layer::variance,     layer::denoised,
+    layer::alpha,  layer::sure,   layer::mix_variance,
+};
+
 }  // namespace
+
+std::string_view option_key(PipelineOption option) {
+  switch (option) {
+    case PipelineOption::denoiser:
+      return "denoiser";
+    case PipelineOption::mixer:
+      return "mixer";
+    case PipelineOption::closed_form_rule:
+      return "closed_form_rule";
+    case PipelineOption::mixer_radius:
+      return "mixer_radius";
+    case PipelineOption::weights:
+      return "weights";
+    case PipelineOption::divergence:
+      return "divergence";
+    case PipelineOption::probes:
+      return "probes";
+    case PipelineOption::t_test:
+      return "t_test";
+    case PipelineOption::ttest_dof:
+      return "ttest_dof";
+    case PipelineOption::features:
+      return "features";
+    case PipelineOption::tile:
+      return "tile";
+    case PipelineOption::search_radius:
+      return "search_radius";
+    case PipelineOption::patch_radius:
+      return "patch_radius";
+    case PipelineOption::gaussian_sigma:
+      return "gaussian_sigma";
+    case PipelineOption::variance_pool_radius:
+      return "variance_pool_radius";
+  }
+  return "?";
+}
+
+PipelineError::PipelineError(PipelineOption option, const std::string& message)
+    : PipelineError(std::string(option_key(option)), message) {}
+
+PipelineError::PipelineError(std::string key, const std::string& message)
+    : std::invalid_argument(key + ": " + message), key_(std::move(key)), message_(message) {}
+
+std::span<const DenoiserEntry> denoisers() {
+  return kDenoisers;
+}
+
+const DenoiserEntry* find_denoiser(std::string_view name) {
+  for (const auto& e : kDenoisers) {
+    if (e.name == name) return &e;
+  }
+  return nullptr;
+}
+
+std::span<const std::string_view> layer_names() {
+  return kLayerNames;
+}
+
+std::vector<std::pair<std::string_view, const Image*>> PipelineResult::layers() const {
+  using Named = std::pair<std::string_view, const Image*>;
+  const std::array<Named, 6> all = {
+      Named{layer::render, &render},     Named{layer::variance, &variance},
+      Named{layer::denoised, &denoised}, Named{layer::alpha, &alpha},
+      Named{layer::sure, &sure},         Named{layer::mix_variance, &mix_variance}};
+  std::vector<Named> out;
+  for (const auto& named : all) {
+    if (!named.second->empty()) out.push_back(named);
+  }
+  return out;
+}
 
 DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, const Image& variance,
                              bool features) {
@@ -88,139 +229,290 @@ DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, co
   return din;
 }
 
-double estimated_result_mse(const Image& x, const Image& variance, const PipelineResult& r) {
-  const auto xv = x.data(), vv = variance.data(), yv = r.denoised.data(), av = r.alpha.data(),
-             sv = r.sure.data();
-  const std::size_t n = std::min({xv.size(), vv.size(), yv.size(), av.size(), sv.size()});
-  if (n == 0) return 0.0;
-  double sum = 0.0, floor = 0.0;
-  for (std::size_t i = 0; i < n; ++i) {
-    const double a = av[i], d = static_cast<double>(yv[i]) - xv[i];
-    sum += (1.0 - a) * vv[i] + a * sv[i] - a * (1.0 - a) * d * d;
-    floor += (1.0 - a) * (1.0 - a) * vv[i];
+// What execute() reuses from run to run: frame-sized copies of the inputs, the whole-frame
+// denoiser's outputs, and each worker thread's tile buffers.
+struct Pipeline::Scratch {
+  struct Tile {
+    Denoised den;
+    Buffer alpha, alpha_final, z;
+    std::size_t floats() const {
+      return den.floats() + alpha.capacity() + alpha_final.capacity() + z.capacity();
+    }
+  };
+  Image x, var, box_tmp;  // sanitised x and Var[x], the box filter's pass
+  Denoised full;          // a whole-frame denoiser's run
+  tbb::enumerable_thread_specific<Tile> tiles;
+
+  std::size_t bytes() const {
+    std::size_t floats =
+        x.data().size() + var.data().size() + box_tmp.data().size() + full.floats();
+    for (const Tile& t : tiles) floats += t.floats();
+    return floats * sizeof(float);
   }
-  // Per-pixel clamping would bias the mean up (interior: 4-5x); the unclamped mean can go below
-  // what the render's share alone contributes when SURE is biased low (noisy features correlated
-  // with x's noise), so it is floored there: MSE(z) >= (1-a)^2 var when div >= 0.
-  return std::max(sum, floor) / static_cast<double>(n);
+};
+
+Pipeline::Pipeline() : scratch_(std::make_unique<Scratch>()) {}
+Pipeline::Pipeline(PipelineOptions options) : Pipeline() {
+  options_ = std::move(options);
+}
+Pipeline::~Pipeline() = default;
+Pipeline::Pipeline(Pipeline&& other) noexcept {
+  *this = std::move(other);
 }
 
-int pipeline_halo(const Denoiser& denoiser, const Mixer& mixer, const PipelineOptions& options) {
-  return denoiser.radius() + mixer.radius() + (options.t_test ? options.ttest.radius : 0);
+Pipeline& Pipeline::operator=(Pipeline&& other) noexcept {
+  options_ = std::move(other.options_);
+  custom_denoiser_ = std::move(other.custom_denoiser_);
+  committed_ = other.committed_;
+  denoiser_ = std::move(other.denoiser_);
+  mixer_ = std::move(other.mixer_);
+  mixer_weights_ = std::move(other.mixer_weights_);
+  analytic_ = other.analytic_;
+  reads_ = other.reads_;
+  halo_ = other.halo_;
+  scratch_ = std::move(other.scratch_);
+  other.committed_ = false;  // its stages are gone: it must be set up and committed again
+  return *this;
 }
 
-PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& options,
-                            const Denoiser* denoiser_in, const Mixer* mixer_in) {
+void Pipeline::set_options(PipelineOptions options) {
+  options_ = std::move(options);
+  committed_ = false;
+}
+
+void Pipeline::set_denoiser(std::shared_ptr<const Denoiser> denoiser) {
+  custom_denoiser_ = std::move(denoiser);
+  committed_ = false;
+}
+
+std::size_t Pipeline::scratch_bytes() const {
+  return scratch_ ? scratch_->bytes() : 0;
+}
+
+void Pipeline::commit() {
+  committed_ = false;
+  const PipelineOptions& o = options_;
+  // Options every stage relies on, checked whether or not the stage will run.
+  if (o.tile < 1) fail(PipelineOption::tile, "must be >= 1");
+  if (o.variance_pool_radius < 0) fail(PipelineOption::variance_pool_radius, "must be >= 0");
+  if (o.closed_form.radius < 0) fail(PipelineOption::mixer_radius, "must be >= 0");
+  if (o.nlmeans.search_radius < 0) fail(PipelineOption::search_radius, "must be >= 0");
+  if (o.nlmeans.patch_radius < 0) fail(PipelineOption::patch_radius, "must be >= 0");
+  if (o.probes.count < 1) fail(PipelineOption::probes, "must be >= 1");
+  if (!(o.probes.epsilon > 0.0f) || !std::isfinite(o.probes.epsilon)) {
+    fail(PipelineOption::probes, "the probe step epsilon must be a positive number");
+  }
+  if (!(o.gaussian_sigma > 0.0f) || o.gaussian_sigma > kMaxGaussianSigma) {
+    fail(PipelineOption::gaussian_sigma, "must be in (0, 21]");
+  }
+  if (o.t_test && o.ttest.radius < 0)
+    fail(PipelineOption::t_test, "the window radius must be >= 0");
+  if (!o.weights.empty() && o.mixer != MixerKind::network) {
+    fail(PipelineOption::weights, "weights are for the network mixer (mixer network)");
+  }
+
+  // The stages, built into locals so a failure leaves nothing half-built.
+  std::shared_ptr<const Denoiser> denoiser;
+  std::unique_ptr<const Mixer> mixer;
+  std::string weights_source = "none";
+  bool analytic = false;
+  EstimateOptions reads{.halves = false, .features = false};
+  if (custom_denoiser_) {
+    denoiser = custom_denoiser_;
+    reads.features = o.features;
+  } else if (o.denoiser != kNoDenoiser) {
+    const DenoiserEntry* entry = find_denoiser(o.denoiser);
+    if (!entry) {
+      std::string known;
+      for (const auto& e : denoisers()) known += std::string(e.name) + ", ";
+      fail(PipelineOption::denoiser, "unknown denoiser '" + o.denoiser + "' (one of " + known +
+                                         std::string(kNoDenoiser) + ")");
+    }
+    try {
+      denoiser = entry->make(o);
+    } catch (const std::invalid_argument& e) {  // a parameter the denoiser itself refuses
+      fail(PipelineOption::denoiser, o.denoiser + ": " + e.what());
+    }
+    reads = entry->reads(o);
+  }
+  if (denoiser) {
+    analytic = o.divergence == DivergenceMethod::analytic ||
+               (o.divergence == DivergenceMethod::automatic && denoiser->has_derivative());
+    if (analytic && !denoiser->has_derivative()) {
+      fail(PipelineOption::divergence, "denoiser " + denoiser->name() +
+                                           " has no Jacobian diagonal for the analytic divergence");
+    }
+    if (o.mixer == MixerKind::network) {
+      std::shared_ptr<const network::PdNet> net;
+      const std::string source = o.weights_source.empty() ? "weights" : o.weights_source;
+      try {
+        net = o.weights.empty() ? network::builtin_network()
+                                : std::make_shared<const network::PdNet>(
+                                      network::parse_weights(o.weights, source), source);
+      } catch (const network::WeightsError& e) {
+        fail(PipelineOption::weights, e.what());
+      }
+      weights_source = net->source();
+      mixer = std::make_unique<network::NetworkMixer>(std::move(net));
+    } else {
+      mixer = std::make_unique<ClosedFormMixer>(o.closed_form);
+    }
+  }
+
+  denoiser_ = std::move(denoiser);
+  mixer_ = std::move(mixer);
+  mixer_weights_ = std::move(weights_source);
+  analytic_ = analytic;
+  reads_ = reads;
+  // The halo: what each tiled stage reads around the region the next one needs. A whole-frame
+  // denoiser has already run over the full image, so it adds nothing.
+  halo_ = 0;
+  if (denoiser_) {
+    halo_ = (denoiser_->whole_frame() ? 0 : denoiser_->radius()) + mixer_->radius() +
+            (o.t_test ? o.ttest.radius : 0);
+  }
+  committed_ = true;
+}
+
+PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext& error_in) {
   const auto t_start = Clock::now();
-  if (frame.mean.empty() || frame.mean.channels() != 3 || !frame.variance.same_size(frame.mean)) {
-    throw std::invalid_argument("run_pipeline: the frame has no RGB mean/variance");
+  if (!committed_) {
+    throw std::logic_error("Pipeline::execute: commit() the options before executing");
   }
-  if (options.tile < 1) throw std::invalid_argument("run_pipeline: tile must be >= 1");
+  if (frame.mean.empty() || frame.mean.channels() != 3 || !frame.variance.same_size(frame.mean) ||
+      frame.variance.channels() != 3) {
+    throw std::invalid_argument("Pipeline::execute: the frame has no RGB mean/variance");
+  }
+  const PipelineOptions& o = options_;
   const int W = frame.mean.width(), H = frame.mean.height();
+  if (!scratch_) scratch_ = std::make_unique<Scratch>();  // a moved-from pipeline, re-committed
+  Scratch& s = *scratch_;
 
-  NlMeansParams nlp = options.nlmeans;
-  nlp.use_features = nlp.use_features && options.features;
-  const NlMeansDenoiser nlmeans(nlp);
-  const GaussianDenoiser gaussian(options.gaussian_sigma);
-  const ClosedFormMixer closed(options.mixer);
-  const Denoiser& builtin = options.denoiser == BuiltinDenoiser::gaussian
-                                ? static_cast<const Denoiser&>(gaussian)
-                                : static_cast<const Denoiser&>(nlmeans);
-  const Denoiser& denoiser = denoiser_in ? *denoiser_in : builtin;
-  const Mixer& mixer = mixer_in ? *mixer_in : closed;
-
+  ErrorContext error = error_in;
+  error.variance_source = frame.variance_source;
   PipelineResult res;
+  res.render = frame.mean;
+  res.variance = frame.variance;
+  res.inputs.variance = frame.variance_source == VarianceSource::renderer;
+  res.halo = halo_;
+  res.denoiser = std::string(kNoDenoiser);
+  res.mixer = "none";
+  res.divergence = "none";
+
+  if (!denoiser_) {  // denoiser "none": publish the render; its own error is Var[x]
+    res.result = frame.mean;
+    res.estimated_error = estimate_error({&frame.mean, &frame.variance, &res.result}, error);
+    res.timings.wall = seconds(t_start, Clock::now());
+    return res;
+  }
+  const Denoiser& denoiser = *denoiser_;
+  const Mixer& mixer = *mixer_;
   res.denoiser = denoiser.name();
   res.mixer = mixer.name();
-  const bool analytic =
-      options.divergence == DivergenceMethod::analytic ||
-      (options.divergence == DivergenceMethod::automatic && denoiser.has_derivative());
-  if (analytic && !denoiser.has_derivative()) {
-    throw std::invalid_argument("run_pipeline: denoiser " + denoiser.name() +
-                                " has no Jacobian diagonal for the analytic divergence");
-  }
-  res.divergence = analytic ? "analytic" : "monte-carlo";
-  res.halo = pipeline_halo(denoiser, mixer, options);
+  res.mixer_weights = mixer_weights_;
+  res.divergence = analytic_ ? "analytic" : "monte-carlo";
+  res.t_test = o.t_test;
 
-  const Image x = sanitized(frame.mean, -kMaxValue, kMaxValue);
-  const Image var = sanitized(frame.variance, 0.0f, kMaxVariance);
+  sanitize_into(frame.mean, -kMaxValue, kMaxValue, s.x);
+  sanitize_into(frame.variance, 0.0f, kMaxVariance, s.var);
+  const Image& x = s.x;
+  const Image& var = s.var;
   // The mixer and the t-test judge x's error from a spatially pooled variance: with few passes a
   // pixel's own estimate is heavy-tailed (most pixels of a caustic never saw its fireflies).
-  const Image var_pooled = box_mean(var, options.variance_pool_radius);
-  res.result = x;
-  res.denoised = x;
-  res.alpha = Image(W, H, 3, 0.0f);
-  res.sure = Image(W, H, 3, 0.0f);
-  res.mix_variance = var_pooled;
+  box_mean(var, o.variance_pool_radius, s.box_tmp, res.mix_variance);
 
   // Simulate only what the frame calls for: a noise-free frame has nothing to denoise.
   if (all_zero(var)) {
     res.noise_free = true;
+    res.result = x;
+    res.denoised = x;
+    res.alpha = Image(W, H, 3, 0.0f);
+    res.sure = Image(W, H, 3, 0.0f);
+    res.estimated_error = estimate_error({&x, &var, &res.result}, error);
     res.timings.wall = seconds(t_start, Clock::now());
     return res;
   }
+  res.result = Image(W, H, 3);
+  res.denoised = Image(W, H, 3);
+  res.alpha = Image(W, H, 3);
+  res.sure = Image(W, H, 3);
 
-  const DenoiseInputs din = denoise_inputs(frame, x, var, options.features && nlp.use_features);
-  // Only a denoiser that reads features makes them inputs of this run.
-  const bool reads_features = &denoiser == &nlmeans;
-  res.inputs = {reads_features && din.albedo.valid(), reads_features && din.normal.valid(),
-                reads_features && din.depth.valid(), false};
+  const DenoiseInputs din = denoise_inputs(frame, x, var, reads_.features);
+  res.inputs.albedo = reads_.features && din.albedo.valid();
+  res.inputs.normal = reads_.features && din.normal.valid();
+  res.inputs.depth = reads_.features && din.depth.valid();
 
   const Rect image{0, 0, W, H};
-  const int T = options.tile;
+  // A whole-frame denoiser runs once over the full image; its y, divergence and SURE are then
+  // read by every tile (its timings are wall time: it may parallelise internally).
+  const bool whole = denoiser.whole_frame();
+  if (whole) {
+    const auto w0 = Clock::now();
+    run_denoiser(denoiser, din, image, analytic_, s.full);
+    const auto w1 = Clock::now();
+    run_sure(denoiser, din, image, analytic_, o.probes, s.full);
+    res.timings.denoise += seconds(w0, w1);
+    res.timings.sure += seconds(w1, Clock::now());
+  }
+
+  const int T = o.tile;
   const int tiles_x = (W + T - 1) / T, tiles_y = (H + T - 1) / T;
-  const int mix_pad = mixer.radius() + (options.t_test ? options.ttest.radius : 0);
-  const int t_pad = options.t_test ? options.ttest.radius : 0;
+  const int t_pad = o.t_test ? o.ttest.radius : 0;
+  const int mix_pad = mixer.radius() + t_pad;
+  const View pooled = view_of(res.mix_variance);
+  const View passes = frame.passes.same_size(frame.mean) ? view_of(frame.passes) : View{};
 
   struct Times {
     double denoise = 0, sure = 0, mixer = 0, ttest = 0, compose = 0;
   };
   tbb::combinable<Times> times;
 
-  tbb::parallel_for(0, tiles_x * tiles_y, [&](int t) {
+  // One tile's stages. They use this thread's scratch, so a thread must not start another tile
+  // while one is in flight: isolate() keeps any parallel work a stage waits on from lending the
+  // thread to this loop's other tiles.
+  const auto run_tile = [&](int t) {
     Times& tm = times.local();
+    Scratch::Tile& b = s.tiles.local();
     const Rect inner = Rect{(t % tiles_x) * T, (t / tiles_x) * T, 0, 0};
     const Rect tile{inner.x0, inner.y0, std::min(inner.x0 + T, W), std::min(inner.y0 + T, H)};
     const Rect r_den = tile.expanded(mix_pad).intersect(image);  // y, SURE needed here
     const Rect r_mix = tile.expanded(t_pad).intersect(image);    // alpha needed here
 
     const double t0 = thread_cpu();
-    Buffer y(r_den, 3), dydx(r_den, 3), div(r_den, 3), sure_buf(r_den, 3);
-    denoiser.denoise(din, r_den, y, analytic ? &dydx : nullptr);
-    const double t1 = thread_cpu();
-    if (analytic) {
-      divergence_from_derivative(din.variance, dydx, r_den, div);
-    } else {
-      divergence_monte_carlo(denoiser, din, r_den, y, options.probes, div);
+    double t1 = t0;
+    if (!whole) {
+      run_denoiser(denoiser, din, r_den, analytic_, b.den);
+      t1 = thread_cpu();
+      run_sure(denoiser, din, r_den, analytic_, o.probes, b.den);
     }
-    sure(din.colour, din.variance, y, div, r_den, sure_buf);
+    const Denoised& d = whole ? s.full : b.den;
+    const View y = d.y.view(), div = d.div.view(), sure_v = d.sure.view();
     const double t2 = thread_cpu();
 
-    const View pooled = view_of(var_pooled);
-    const View passes = frame.passes.same_size(frame.mean) ? view_of(frame.passes) : View{};
-    MixInputs mi{W, H, din.colour, y.view(), pooled, sure_buf.view(), div.view()};
-    Buffer alpha(r_mix, 3);
-    mixer.mix(mi, r_mix, alpha);
+    const MixInputs mi{W, H, din.colour, y, pooled, sure_v, div};
+    b.alpha.reset(r_mix, 3);
+    mixer.mix(mi, r_mix, b.alpha);
     const double t3 = thread_cpu();
 
-    Buffer alpha_final(tile, 3);
-    if (options.t_test) {
-      Buffer z(r_mix, 3);
+    b.alpha_final.reset(tile, 3);
+    if (o.t_test) {
+      b.z.reset(r_mix, 3);
       for (int c = 0; c < 3; ++c) {
         for (int py = r_mix.y0; py < r_mix.y1; ++py) {
           for (int px = r_mix.x0; px < r_mix.x1; ++px) {
             const float xv = x.at(px, py, c);
-            z.at(px, py, c) = xv + alpha.at(px, py, c) * (y.at(px, py, c) - xv);
+            b.z.at(px, py, c) = xv + b.alpha.at(px, py, c) * (y.at(px, py, c) - xv);
           }
         }
       }
-      t_rescale(din.colour, pooled, z.view(), alpha.view(), W, H, tile, options.ttest, alpha_final,
+      t_rescale(din.colour, pooled, b.z.view(), b.alpha.view(), W, H, tile, o.ttest, b.alpha_final,
                 passes);
     } else {
       for (int c = 0; c < 3; ++c) {
         for (int py = tile.y0; py < tile.y1; ++py) {
-          for (int px = tile.x0; px < tile.x1; ++px)
-            alpha_final.at(px, py, c) = alpha.at(px, py, c);
+          for (int px = tile.x0; px < tile.x1; ++px) {
+            b.alpha_final.at(px, py, c) = b.alpha.at(px, py, c);
+          }
         }
       }
     }
@@ -231,14 +523,14 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
         for (int px = tile.x0; px < tile.x1; ++px) {
           const float xv = x.at(px, py, c);
           const float yv = y.at(px, py, c);
-          const float a = alpha_final.at(px, py, c);
+          const float a = b.alpha_final.at(px, py, c);
           // Written as a convex combination so z stays within [min(x, y), max(x, y)].
           float z = (1.0f - a) * xv + a * yv;
           z = std::clamp(z, std::min(xv, yv), std::max(xv, yv));
           res.result.at(px, py, c) = z;
           res.denoised.at(px, py, c) = yv;
           res.alpha.at(px, py, c) = a;
-          res.sure.at(px, py, c) = sure_buf.at(px, py, c);
+          res.sure.at(px, py, c) = sure_v.at(px, py, c);
         }
       }
     }
@@ -248,7 +540,9 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
     tm.mixer += t3 - t2;
     tm.ttest += t4 - t3;
     tm.compose += t5 - t4;
-  });
+  };
+  tbb::parallel_for(0, tiles_x * tiles_y,
+                    [&](int t) { tbb::this_task_arena::isolate([&] { run_tile(t); }); });
 
   times.combine_each([&](const Times& tm) {
     res.timings.denoise += tm.denoise;
@@ -257,6 +551,9 @@ PipelineResult run_pipeline(const FrameEstimate& frame, const PipelineOptions& o
     res.timings.ttest += tm.ttest;
     res.timings.compose += tm.compose;
   });
+  // Error of z = x + a (y - x) from the pipeline's own estimates (SURE of z), with its interval.
+  res.estimated_error =
+      estimate_error({&x, &var, &res.result, &res.denoised, &res.alpha, &res.sure}, error);
   res.timings.wall = seconds(t_start, Clock::now());
   return res;
 }

@@ -6,6 +6,9 @@
 #include <ctime>
 #include <regex>
 
+#include "proden/protocol/pipeline_spec.hpp"
+#include "proden/protocol/publish.hpp"
+
 namespace proden::protocol {
 
 using nlohmann::json;
@@ -45,7 +48,18 @@ void check_pattern(const std::string& p) {
   if (p.find('\0') != std::string::npos) bad("watch.pattern", "contains NUL");
 }
 
+// The job's pipeline object as the client gave it, denoiser and mixer defaulting to "auto".
+json pipeline_json(const PipelineSpec& p) {
+  json out = {{"denoiser", "auto"}, {"mixer", "auto"}};
+  out.update(p.given);
+  return out;
+}
+
 }  // namespace
+
+PipelineSpec PipelineSpec::from_json(const json& given) {
+  return {given, parse_pipeline_options(given)};
+}
 
 json ApiError::to_json() const {
   return {{"error", {{"code", code_}, {"message", what()}}}};
@@ -83,11 +97,11 @@ JobSpec parse_job_spec(const json& body) {
   if (body.contains("pipeline") && !body["pipeline"].is_null()) {
     const json& p = body["pipeline"];
     if (!p.is_object()) bad("pipeline", "must be an object");
-    j.pipeline.denoiser = get_string(p, "denoiser", "pipeline.denoiser", false, "auto");
-    j.pipeline.mixer = get_string(p, "mixer", "pipeline.mixer", false, "auto");
-    static const std::regex opt_re("[a-z0-9_-]{1,32}");
-    if (!std::regex_match(j.pipeline.denoiser, opt_re)) bad("pipeline.denoiser", "bad value");
-    if (!std::regex_match(j.pipeline.mixer, opt_re)) bad("pipeline.mixer", "bad value");
+    try {
+      j.pipeline = PipelineSpec::from_json(p);
+    } catch (const PipelineError& e) {
+      bad("pipeline." + e.key(), e.message());
+    }
   }
   if (!body.contains("output") || !body["output"].is_object()) bad("output", "required object");
   const json& o = body["output"];
@@ -171,7 +185,7 @@ json to_json(const JobSpec& j) {
   json out = {{"id", j.id},
               {"name", j.name},
               {"renderer", j.renderer},
-              {"pipeline", {{"denoiser", j.pipeline.denoiser}, {"mixer", j.pipeline.mixer}}},
+              {"pipeline", pipeline_json(j.pipeline)},
               {"output",
                {{"dir", j.output.dir},
                 {"formats", j.output.png ? json::array({"exr", "png"}) : json::array({"exr"})},
@@ -215,19 +229,17 @@ PassIdentity pass_identity_from_json(const json& j) {
 }
 
 json to_json(const FrameStatus& f, bool detail) {
-  json j = {
-      {"job", f.job},
-      {"frame", f.frame},
-      {"passes", f.passes},
-      {"spp", f.spp},
-      {"version", f.version},
-      {"updated", f.updated.empty() ? json() : json(f.updated)},
-      {"estimated_mse", f.estimated_mse},
-      {"estimated_error", f.estimated_error.is_null()
-                              ? json{{"mse", f.estimated_mse}, {"source", f.estimated_mse_source}}
-                              : f.estimated_error},
-      {"converged", f.converged},
-      {"pending", f.pending}};
+  json j = {{"job", f.job},         {"frame", f.frame},
+            {"passes", f.passes},   {"spp", f.spp},
+            {"version", f.version}, {"updated", f.updated.empty() ? json() : json(f.updated)},
+            {"pending", f.pending}, {"converged", f.converged}};
+  // The full estimated_error object of the latest version (docs/error_estimate.md); before the
+  // first one, the pipeline's mean error alone.
+  j["estimated_mse"] = f.estimated_mse;
+  j["estimated_mse_source"] = f.estimated_mse_source;
+  j["estimated_error"] = f.estimated_error.is_null()
+                             ? json{{"mse", f.estimated_mse}, {"source", f.estimated_mse_source}}
+                             : f.estimated_error;
   if (!detail) return j;
   j["width"] = f.width;
   j["height"] = f.height;

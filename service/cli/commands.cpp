@@ -5,22 +5,21 @@
 #include <chrono>
 #include <cstdio>
 #include <iostream>
+#include <optional>
 
 #include "cli/progress.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/aov.hpp"
 #include "proden/error.hpp"
 #include "proden/error_estimate.hpp"
-#include "proden/io/image_writer.hpp"
 #include "proden/io/network_file.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/metrics.hpp"
+#include "proden/progressive.hpp"
 #include "proden/protocol/estimate.hpp"
 #include "proden/protocol/json.hpp"
-
-#ifndef PRODEN_VERSION
-#define PRODEN_VERSION "dev"
-#endif
+#include "proden/protocol/pipeline_spec.hpp"
+#include "proden/protocol/publish.hpp"
 
 namespace proden::cli {
 namespace {
@@ -89,80 +88,61 @@ Accumulated accumulate(const std::vector<std::string>& files, const InputOptions
   return a;
 }
 
+// The pipeline the options describe, committed: a bad option or weights file is refused by its
+// flag (exit 2) before any pass is read.
+std::optional<Pipeline> committed_pipeline(const nlohmann::json& flags) {
+  nlohmann::json given = flags;
+  std::string weights_path;
+  if (const auto w = given.find("weights"); w != given.end()) {
+    weights_path = w->get<std::string>();
+    given.erase(w);
+  }
+  try {
+    PipelineOptions options = protocol::parse_pipeline_options(given);
+    if (!weights_path.empty()) {
+      options.weights = io::read_weights_file(weights_path);
+      options.weights_source = weights_path;
+    }
+    Pipeline pipeline(std::move(options));
+    pipeline.commit();
+    return pipeline;
+  } catch (const PipelineError& e) {
+    spdlog::error("{}: {}", protocol::cli_flag(e.key()), e.message());
+  } catch (const network::WeightsError& e) {
+    spdlog::error("{}: {}", protocol::cli_flag(option_key(PipelineOption::weights)), e.what());
+  }
+  return std::nullopt;
+}
+
 }  // namespace
 
 int run_denoise(const DenoiseOptions& o) {
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
-  std::unique_ptr<Mixer> mixer;
-  std::string weights_source;
-  if (o.mixer == "network") {
-    try {
-      auto net = io::load_network(o.weights);
-      weights_source = net->source();
-      mixer = std::make_unique<network::NetworkMixer>(std::move(net));
-    } catch (const network::WeightsError& e) {
-      spdlog::error("--weights: {}", e.what());
-      return kUsage;
-    }
-  } else if (!o.weights.empty()) {
-    spdlog::error("--weights needs --mixer network");
-    return kUsage;
-  }
+  std::optional<Pipeline> pipeline = committed_pipeline(o.pipeline);
+  if (!pipeline) return kUsage;
   Accumulated a = accumulate(o.passes, o.input, "accumulate", o.progress, o.renderer_aovs);
   if (a.frame.empty()) {
     spdlog::error("no usable pass among {} file(s); nothing written", o.passes.size());
     return kBadInput;
   }
   const auto t1 = Clock::now();
-  const FrameEstimate est =
-      a.frame.estimate({.halves = false, .features = o.input.features && o.pipeline.features});
-  const PipelineResult res = run_pipeline(est, o.pipeline, nullptr, mixer.get());
+  const FrameEstimate est = a.frame.estimate(pipeline->estimate_options());
   ErrorContext ectx;
   ectx.spp = a.frame.total_spp();
   ectx.passes = a.frame.passes();
-  ectx.variance_source = est.variance_source;
   ectx.noise_scope =
       a.first.renderer == io::Renderer::cycles ? NoiseScope::pixel : NoiseScope::frame;
-  const EstimatedError error = estimate_error(
-      {&est.mean, &est.variance, &res.result, &res.denoised, &res.alpha, &res.sure}, ectx);
+  const PipelineResult res = pipeline->execute(est, ectx);
   const auto t2 = Clock::now();
 
-  // What the run actually used, in the paper's Table 1 terms (HDR, +VAR, +ALB+NRM).
-  Layout used = res.inputs;
-  used.variance = a.frame.layout().variance;
-  std::vector<io::NamedChannel> channels;
-  io::add_layer(channels, "", res.result);
-  if (o.aov) {
-    io::add_layer(channels, "render.", est.mean);
-    io::add_layer(channels, "variance.", est.variance);
-    io::add_layer(channels, "denoised.", res.denoised);
-    io::add_layer(channels, "alpha.", res.alpha);
-    io::add_layer(channels, "sure.", res.sure);
-    io::add_layer(channels, "mixvariance.", res.mix_variance);
-  }
-  const std::vector<AovChannel> aov_planes = a.aovs.result();
-  io::add_aovs(channels, aov_planes);
-  io::WriteOptions w;
-  w.half = o.half;
-  w.attributes = {
-      {"Software", std::string("proden ") + PRODEN_VERSION},
-      {"proden:passes", std::to_string(a.frame.passes())},
-      {"proden:spp", std::to_string(a.frame.total_spp())},
-      {"proden:inputs", used.to_string()},
-      {"proden:denoiser", res.denoiser},
-      {"proden:mixer", res.mixer},
-      {"proden:mixer_weights", weights_source.empty() ? "none" : weights_source},
-      {"proden:divergence", res.divergence},
-      {"proden:t_test", o.pipeline.t_test ? "on" : "off"},
-      {"proden:variance_source", std::string(protocol::to_string(est.variance_source))},
-      {"proden:low_confidence", est.low_confidence() ? "true" : "false"},
-      {"proden:estimated_error", protocol::to_json(error).dump()},
-  };
-  if (!a.first.layer.empty()) w.attributes.emplace_back("proden:view_layer", a.first.layer);
-  w.attributes.insert(w.attributes.end(), a.aovs.attributes().begin(), a.aovs.attributes().end());
+  // Written exactly as the daemon publishes (protocol/publish.hpp); the layers with --aov, the
+  // renderer's AOVs beside the result.
+  protocol::Attributes attributes =
+      protocol::header_attributes(protocol::provenance_of(a.frame, est), res);
+  if (!a.first.layer.empty()) attributes.emplace_back("proden:view_layer", a.first.layer);
   try {
-    io::write_image(o.out, a.frame.width(), a.frame.height(), channels, w);
+    protocol::write_frame(o.out, res, attributes, o.aov, o.half, &a.aovs);
   } catch (const std::exception& e) {
     spdlog::error("{}", e.what());
     return kInternalError;
@@ -188,13 +168,18 @@ int run_denoise(const DenoiseOptions& o) {
     j["output"] = o.out;
     j["rejected_files"] = a.rejected;
     j["seconds"] = total_s;
-    j["inputs_used"] = used.to_string();
-    j["pipeline"] = {{"denoiser", res.denoiser},     {"mixer", res.mixer},
-                     {"divergence", res.divergence}, {"t_test", o.pipeline.t_test},
-                     {"tile", o.pipeline.tile},      {"halo", res.halo},
-                     {"noise_free", res.noise_free}};
-    if (!weights_source.empty()) j["pipeline"]["weights"] = weights_source;
-    protocol::put_estimated_error(j, error);
+    j["inputs_used"] = res.inputs.to_string();
+    j["pipeline"] = {{"denoiser", res.denoiser},
+                     {"mixer", res.mixer},
+                     {"divergence", res.divergence},
+                     {"t_test", res.t_test},
+                     {"tile", pipeline->options().tile},
+                     {"halo", res.halo},
+                     {"noise_free", res.noise_free},
+                     {"settings", protocol::settings_json(pipeline->options())}};
+    if (res.mixer_weights != "none") j["pipeline"]["weights"] = res.mixer_weights;
+    // The same keys, from the same numbers, as the daemon's frame status.
+    protocol::put_estimated_error(j, res.estimated_error);
     j["renderer"] = io::to_string(a.first.renderer);
     j["view_layer"] = a.first.layer.empty() ? json() : json(a.first.layer);
     j["view_layers"] = a.first.layers;
@@ -207,10 +192,12 @@ int run_denoise(const DenoiseOptions& o) {
     std::cout << j.dump(2) << "\n";
   } else {
     spdlog::info(
-        "{}: {} pass(es), {} spp, inputs {}, variance from {}{}; {} + {} mixer{}; {:.2f} s", o.out,
-        a.frame.passes(), a.frame.total_spp(), used.to_string(),
+        "{}: {} pass(es), {} spp, inputs {}, variance from {}{}; {} + {} mixer{}; estimated MSE "
+        "{:.3g} ({}); {:.2f} s",
+        o.out, a.frame.passes(), a.frame.total_spp(), res.inputs.to_string(),
         protocol::to_string(est.variance_source), est.low_confidence() ? " (low confidence)" : "",
-        res.denoiser, res.mixer, o.pipeline.t_test ? " + t-test" : "", total_s);
+        res.denoiser, res.mixer, res.t_test ? " + t-test" : "", res.estimated_error.mse,
+        res.estimated_error.source, total_s);
     if (o.timings) {
       std::fprintf(stderr,
                    "timings (s): read+accumulate %.3f | pipeline wall %.3f (cpu: denoise %.3f, "

@@ -6,9 +6,9 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "proden/io/profile.hpp"
-#include "proden/network/builtin.hpp"
-#include "proden/progressive.hpp"
 
 namespace proden::cli {
 
@@ -28,9 +28,9 @@ struct InputOptions {
 
 struct DenoiseOptions {
   InputOptions input;
-  PipelineOptions pipeline;
-  std::string mixer = network::kDefaultMixer;  // "network" or "closed-form"
-  std::string weights;                         // network weights file; empty = the built-in ones
+  // The pipeline options given, by key (protocol/pipeline_spec.hpp; the job JSON's `pipeline`
+  // form), plus "weights": a network weights file to read instead of the built-in ones.
+  nlohmann::json pipeline = nlohmann::json::object();
   std::vector<std::string> passes;
   std::string out;
   bool aov = false;

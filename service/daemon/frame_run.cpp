@@ -16,10 +16,6 @@
 #include "proden/protocol/estimate.hpp"
 #include "proden/protocol/json.hpp"
 
-#ifndef PRODEN_VERSION
-#define PRODEN_VERSION "dev"
-#endif
-
 namespace proden::daemon {
 
 namespace fs = std::filesystem;
@@ -166,14 +162,13 @@ FrameRun::Outcome FrameRun::run(Input in) {
   std::vector<VersionEntry> dropped_versions;
   try {
     auto t0 = Clock::now();
-    const FrameEstimate est = acc->estimate({.halves = false, .features = true});
+    const FrameEstimate est = acc->estimate(FrameProcessor::estimate_options(spec.pipeline));
     metrics_.observe("proden_stage_duration_seconds", "estimate", seconds_since(t0));
     ErrorContext ectx;
     ectx.spp = acc->total_spp();
     ectx.passes = acc->passes();
-    ectx.variance_source = est.variance_source;
     ectx.noise_scope = rec.renderer == "cycles" ? NoiseScope::pixel : NoiseScope::frame;
-    const ProcessedFrame out = FrameProcessor::process(est, spec.pipeline, ectx);
+    const ProcessedFrame out = FrameProcessor::process(*acc, est, spec.pipeline, ectx);
     for (const auto& [stage, s] : out.stage_seconds) {
       metrics_.observe("proden_stage_duration_seconds", stage, s);
     }
@@ -192,14 +187,14 @@ FrameRun::Outcome FrameRun::run(Input in) {
       rec.low_confidence = est.low_confidence();
       rec.digest = acc->state_digest();
       rec.ingested.insert(rec.ingested.end(), accepted.begin(), accepted.end());
-      rec.estimated_error = protocol::to_json(out.error);
+      rec.estimated_error = protocol::to_json(out.run.estimated_error);
       rec.aovs = json::array();
       for (const auto& [name, mode] : aovs->channels()) {
         rec.aovs.push_back({{"name", name}, {"mode", to_string(mode)}});
       }
       const auto transition =
           rec.convergence.update(spec.target, spec.min_passes, rec.passes, rec.low_confidence,
-                                 out.error, rec.version, rec.updated);
+                                 out.run.estimated_error, rec.version, rec.updated);
       if (transition == Convergence::Transition::converged) {
         metrics_.inc("proden_frames_converged_total");
       } else if (transition == Convergence::Transition::unconverged) {
@@ -225,20 +220,13 @@ FrameRun::Outcome FrameRun::run(Input in) {
     }
     t0 = Clock::now();
     fs::create_directories(spec.output.dir);
-    std::vector<std::pair<std::string, std::string>> attrs = {
-        {"Software", std::string("proden ") + PRODEN_VERSION},
-        {"proden:passes", std::to_string(rec.passes)},
-        {"proden:spp", std::to_string(rec.spp)},
-        {"proden:inputs", rec.inputs},
-        {"proden:variance_source", rec.variance_source},
-        {"proden:low_confidence", rec.low_confidence ? "true" : "false"},
+    protocol::Attributes extra = {
         {"proden:version", std::to_string(rec.version)},
-        {"proden:estimated_error", rec.estimated_error.dump()},
         {"proden:converged", rec.convergence.converged() ? "true" : "false"},
     };
-    if (!rec.view_layer.empty()) attrs.emplace_back("proden:view_layer", rec.view_layer);
+    if (!rec.view_layer.empty()) extra.emplace_back("proden:view_layer", rec.view_layer);
     const auto outputs = FrameProcessor::publish(out, output_base(spec, frame_no).string(),
-                                                 spec.output.png, attrs, aovs.get());
+                                                 spec.output.png, extra, aovs.get());
     // Every version stays addressable (docs/api.md, "Versions").
     keep_version(outputs.front(), version_file(spec, frame_no, rec.version));
     for (const auto& v : dropped_versions) {

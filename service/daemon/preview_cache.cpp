@@ -14,8 +14,7 @@ void PreviewCache::check_request(const std::string& format, const std::string& l
     throw ApiError(400, "invalid_parameter", "format must be exr or png");
   }
   if (!layer.empty() && !known_layer(layer)) {
-    throw ApiError(400, "invalid_parameter",
-                   "layer must be one of result, render, variance, denoised, alpha, sure");
+    throw ApiError(400, "invalid_parameter", "layer must be one of " + known_layers());
   }
 }
 

@@ -3,100 +3,90 @@
 #include <OpenImageIO/imageio.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 #include <memory>
 #include <stdexcept>
-#include <string_view>
 
 #include "proden/io/image_writer.hpp"
-#include "proden/network/builtin.hpp"
-#include "proden/progressive.hpp"
+#include "proden/protocol/pipeline_spec.hpp"
 
 namespace proden::daemon {
+namespace {
+
+// This worker thread's committed pipeline for the options it last ran: consecutive frames with the
+// same options reuse its stages and scratch; other options rebuild it (cheap: the built-in
+// network is parsed once per process). One per thread, so one execute() at a time on each.
+Pipeline& pipeline_for(const PipelineOptions& options) {
+  thread_local std::unique_ptr<Pipeline> pipeline;
+  thread_local std::string key;
+  std::string k = protocol::settings_json(options).dump();
+  if (!pipeline || k != key) {
+    auto p = std::make_unique<Pipeline>(options);
+    p->commit();
+    pipeline = std::move(p);
+    key = std::move(k);
+  }
+  return *pipeline;
+}
+
+}  // namespace
 
 bool FrameProcessor::supports(const protocol::PipelineSpec& spec, std::string& why) {
-  if (spec.denoiser != "auto" && spec.denoiser != "nlmeans" && spec.denoiser != "none") {
-    why = "pipeline.denoiser: one of auto, nlmeans, none";
-    return false;
-  }
-  if (spec.mixer != "auto" && spec.mixer != "closed-form" && spec.mixer != "stein" &&
-      spec.mixer != "inverse-error" && spec.mixer != "network") {
-    why = "pipeline.mixer: one of auto, network, closed-form (= stein), stein, inverse-error";
+  try {
+    Pipeline(spec.options).commit();
+  } catch (const PipelineError& e) {
+    why = "pipeline." + e.key() + ": " + e.message();
     return false;
   }
   return true;
 }
 
-ProcessedFrame FrameProcessor::process(const FrameEstimate& estimate,
+EstimateOptions FrameProcessor::estimate_options(const protocol::PipelineSpec& spec) {
+  return pipeline_for(spec.options).estimate_options();
+}
+
+ProcessedFrame FrameProcessor::process(const FrameAccumulator& frame, const FrameEstimate& estimate,
                                        const protocol::PipelineSpec& spec,
                                        const ErrorContext& error_context) {
   ProcessedFrame out;
-  out.layers.emplace_back("render", estimate.mean);
-  out.layers.emplace_back("variance", estimate.variance);
-  const auto var = estimate.variance.data();
-  if (spec.denoiser == "none") {  // publish the accumulated render; its own error is Var[x]
-    out.result = estimate.mean;
-    double sum = 0.0;
-    for (float x : var) sum += static_cast<double>(x);
-    out.estimated_mse = var.empty() ? 0.0 : sum / static_cast<double>(var.size());
-    out.estimated_mse_source = "variance";
-    out.error = estimate_error({&estimate.mean, &estimate.variance, &out.result}, error_context);
-    return out;
+  out.run = pipeline_for(spec.options).execute(estimate, error_context);
+  out.attributes = protocol::header_attributes(protocol::provenance_of(frame, estimate), out.run);
+  out.estimated_mse = out.run.estimated_error.mse;
+  out.estimated_mse_source = std::string(out.run.estimated_error.source);
+  if (!out.run.denoised.empty()) {
+    const StageTimings& t = out.run.timings;
+    out.stage_seconds = {{"denoise", t.denoise}, {"sure", t.sure},       {"mix", t.mixer},
+                         {"ttest", t.ttest},     {"compose", t.compose}, {"pipeline", t.wall}};
   }
-  PipelineOptions options;
-  if (spec.mixer == "inverse-error") options.mixer.rule = ClosedFormRule::inverse_error;
-  // "auto" is whichever mixer won on the validation scenes (network::kDefaultMixer).
-  const bool use_network =
-      spec.mixer == "network" ||
-      (spec.mixer == "auto" && std::string_view(network::kDefaultMixer) == "network");
-  std::unique_ptr<Mixer> mixer;
-  if (use_network) mixer = std::make_unique<network::NetworkMixer>(network::builtin_network());
-  PipelineResult r = run_pipeline(estimate, options, nullptr, mixer.get());
-  // Error of z = x + a (y - x) from the pipeline's own estimates (SURE of z).
-  out.estimated_mse = estimated_result_mse(estimate.mean, estimate.variance, r);
-  out.estimated_mse_source = "variance+sure";
-  out.stage_seconds = {{"denoise", r.timings.denoise}, {"sure", r.timings.sure},
-                       {"mix", r.timings.mixer},       {"ttest", r.timings.ttest},
-                       {"compose", r.timings.compose}, {"pipeline", r.timings.wall}};
-  out.error = estimate_error(
-      {&estimate.mean, &estimate.variance, &r.result, &r.denoised, &r.alpha, &r.sure},
-      error_context);
-  out.result = std::move(r.result);
-  out.layers.emplace_back("denoised", std::move(r.denoised));
-  out.layers.emplace_back("alpha", std::move(r.alpha));
-  out.layers.emplace_back("sure", std::move(r.sure));
   return out;
 }
 
-std::vector<std::string> FrameProcessor::publish(
-    const ProcessedFrame& frame, const std::string& base, bool png,
-    const std::vector<std::pair<std::string, std::string>>& attributes,
-    const AovAccumulator* aovs) {
-  std::vector<io::NamedChannel> channels;
-  io::add_layer(channels, "", frame.result);
-  for (const auto& [name, img] : frame.layers) {
-    io::add_layer(channels, name + ".", img, img.channels() == 1 ? "Y" : "RGB");
-  }
-  io::WriteOptions w;
-  w.attributes = attributes;
-  const std::vector<AovChannel> aov_planes = aovs ? aovs->result() : std::vector<AovChannel>{};
-  io::add_aovs(channels, aov_planes);
-  if (aovs)
-    w.attributes.insert(w.attributes.end(), aovs->attributes().begin(), aovs->attributes().end());
+std::vector<std::string> FrameProcessor::publish(const ProcessedFrame& frame,
+                                                 const std::string& base, bool png,
+                                                 const protocol::Attributes& extra,
+                                                 const AovAccumulator* aovs) {
   std::vector<std::string> written;
-  io::write_image(base + ".exr", frame.result.width(), frame.result.height(), channels, w);
+  protocol::Attributes attributes = frame.attributes;
+  attributes.insert(attributes.end(), extra.begin(), extra.end());
+  protocol::write_frame(base + ".exr", frame.run, attributes, /*layers=*/true, /*half=*/false,
+                        aovs);
   written.push_back(base + ".exr");
   if (png) {
-    write_png_preview(base + ".png", frame.result);
+    write_png_preview(base + ".png", frame.run.result);
     written.push_back(base + ".png");
   }
   return written;
 }
 
 bool known_layer(const std::string& layer) {
-  return layer == "result" || layer == "render" || layer == "variance" || layer == "denoised" ||
-         layer == "alpha" || layer == "sure";
+  const auto names = layer_names();
+  return std::find(names.begin(), names.end(), layer) != names.end();
+}
+
+std::string known_layers() {
+  std::string s;
+  for (const auto name : layer_names()) s += (s.empty() ? "" : ", ") + std::string(name);
+  return s;
 }
 
 Image read_layer(const std::string& exr_path, const std::string& layer) {

@@ -1,6 +1,7 @@
-// FrameProcessor: the one place where an accumulated frame becomes published images: runs the
-// progressive pipeline (proden::run_pipeline) and names its layers (result, render, variance,
-// denoised, alpha, sure) and its error estimate; with denoiser "none" it publishes the render.
+// FrameProcessor: the one place where the daemon turns an accumulated frame into published images:
+// runs the job's pipeline (proden::Pipeline, committed once per worker thread and options, so its
+// stages and scratch are reused frame after frame) and publishes it the way the CLI does
+// (protocol/publish.hpp: the same layers and `proden:` header fields, plus a PNG preview).
 #pragma once
 
 #include <string>
@@ -11,37 +12,43 @@
 #include "proden/aov.hpp"
 #include "proden/error_estimate.hpp"
 #include "proden/image.hpp"
+#include "proden/progressive.hpp"
 #include "proden/protocol/api.hpp"
+#include "proden/protocol/publish.hpp"
 
 namespace proden::daemon {
 
 struct ProcessedFrame {
-  Image result;                                       // RGB
-  std::vector<std::pair<std::string, Image>> layers;  // "render", "variance", later "denoised"...
-  double estimated_mse = 0.0;                         // the pipeline's own error estimate
-  std::string estimated_mse_source = "variance";      // "variance" until SURE is available
-  EstimatedError error;  // the estimated_error object (estimate_error(); mse = estimated_mse)
+  PipelineResult run;               // the result, its layers and its estimated error
+  protocol::Attributes attributes;  // the published EXR's header fields
+  double estimated_mse = 0.0;       // = run.estimated_error, as the frame status reports it
+  std::string estimated_mse_source;
   std::vector<std::pair<std::string, double>> stage_seconds;
 };
 
 class FrameProcessor {
  public:
-  // Whether the job's pipeline options name things this build has (why = the reason if not).
+  // Whether the job's pipeline builds here: its options commit (why = the error, naming
+  // pipeline.<key>, if not).
   static bool supports(const protocol::PipelineSpec& spec, std::string& why);
-  static ProcessedFrame process(const FrameEstimate& estimate, const protocol::PipelineSpec& spec,
+  // What the job's pipeline needs of the accumulated frame (FrameAccumulator::estimate).
+  static EstimateOptions estimate_options(const protocol::PipelineSpec& spec);
+  // `error_context`: what the error estimate needs besides the images (docs/error_estimate.md).
+  static ProcessedFrame process(const FrameAccumulator& frame, const FrameEstimate& estimate,
+                                const protocol::PipelineSpec& spec,
                                 const ErrorContext& error_context);
 
-  // Writes <base>.exr (R,G,B + each layer as layer.R/G/B + the renderer AOVs, if any, with
-  // their header attributes) and, if png, <base>.png (tone-mapped result), atomically. Returns
-  // the paths written, the EXR first.
-  static std::vector<std::string> publish(
-      const ProcessedFrame& frame, const std::string& base, bool png,
-      const std::vector<std::pair<std::string, std::string>>& attributes,
-      const AovAccumulator* aovs = nullptr);
+  // Writes <base>.exr (R,G,B + every layer as <layer>.R/G/B + the renderer AOVs, with the header
+  // fields plus `extra`) and, if png, <base>.png (tone-mapped result), atomically. Returns the
+  // paths written, the EXR first.
+  static std::vector<std::string> publish(const ProcessedFrame& frame, const std::string& base,
+                                          bool png, const protocol::Attributes& extra = {},
+                                          const AovAccumulator* aovs = nullptr);
 };
 
-// Names of layers a client may request: result, render, variance, denoised, alpha, sure.
+// Names of layers a client may request (proden::layer_names()), and them as a list for messages.
 bool known_layer(const std::string& layer);
+std::string known_layers();
 
 // Reads layer `layer` ("result" = R,G,B) of a published EXR; empty Image if absent.
 Image read_layer(const std::string& exr_path, const std::string& layer);

@@ -5,6 +5,7 @@
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
 #include <ImfInputFile.h>
+#include <ImfStringAttribute.h>
 #include <sys/wait.h>
 
 #include <algorithm>
@@ -14,6 +15,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <random>
 #include <sstream>
@@ -103,6 +105,21 @@ std::vector<std::vector<float>> read_exr(const std::string& path,
   in.setFrameBuffer(fb);
   in.readPixels(dw.min.y, dw.max.y);
   return planes;
+}
+
+// Every string attribute of an EXR header whose name starts with `prefix`, read with OpenEXR.
+std::map<std::string, std::string> string_attributes(const std::string& path,
+                                                     const std::string& prefix = "proden:") {
+  Imf::InputFile in(path.c_str());
+  std::map<std::string, std::string> out;
+  for (auto it = in.header().begin(); it != in.header().end(); ++it) {
+    const std::string name = it.name();
+    if (name.rfind(prefix, 0) != 0) continue;
+    if (const auto* a = dynamic_cast<const Imf::StringAttribute*>(&it.attribute())) {
+      out[name] = a->value();
+    }
+  }
+  return out;
 }
 
 const std::vector<std::string> kCombined = {"ViewLayer.Combined.R", "ViewLayer.Combined.G",
@@ -349,4 +366,126 @@ TEST_CASE("bad input: named in the error, exit code 3, the rest still processed"
   const Run usage = proden("denoise " + ps[0], s);  // --out missing
   CHECK(usage.code == 2);
   CHECK(proden("frobnicate", s).code == 2);
+}
+
+TEST_CASE(
+    "denoise --json reports the estimated error as the daemon does, and the header says how "
+    "the frame was made",
+    "[cli][real]") {
+  Scratch s;
+  const std::string out = s.file("e.exr");
+  const Run r = proden("denoise -q --aov --json --out " + out + join(passes("cornell")), s);
+  INFO(r.err);
+  REQUIRE(r.code == 0);
+  const auto j = nlohmann::json::parse(r.out);
+  // The daemon's frame-status keys (docs/api.md).
+  REQUIRE(j.contains("estimated_mse"));
+  const double est = j["estimated_mse"];
+  CHECK(j["estimated_mse_source"] == "variance+sure");
+  CHECK(j["estimated_error"]["mse"] == est);
+  CHECK(j["estimated_error"]["source"] == "variance+sure");
+  CHECK(est > 0);
+  // Recomputed independently from the written layers: the mean over pixels and RGB of the
+  // result's SURE (1-a) var + a SURE - a (1-a) (y-x)^2, floored at the mean of (1-a)^2 var.
+  int w = 0, h = 0;
+  const auto x = read_exr(out, {"render.R", "render.G", "render.B"}, &w, &h);
+  const auto v = read_exr(out, {"variance.R", "variance.G", "variance.B"}, &w, &h);
+  const auto y = read_exr(out, {"denoised.R", "denoised.G", "denoised.B"}, &w, &h);
+  const auto a = read_exr(out, {"alpha.R", "alpha.G", "alpha.B"}, &w, &h);
+  const auto sure = read_exr(out, {"sure.R", "sure.G", "sure.B"}, &w, &h);
+  read_exr(out, {"mixvariance.R", "mixvariance.G", "mixvariance.B"}, &w, &h);  // present
+  double sum = 0, floor = 0, n = 0;
+  for (std::size_t c = 0; c < 3; ++c) {
+    for (std::size_t p = 0; p < x[c].size(); ++p, ++n) {
+      const double al = a[c][p], d = static_cast<double>(y[c][p]) - x[c][p];
+      sum += (1 - al) * v[c][p] + al * sure[c][p] - al * (1 - al) * d * d;
+      floor += (1 - al) * (1 - al) * v[c][p];
+    }
+  }
+  CHECK(est == Approx(std::max(sum, floor) / n).epsilon(1e-9));
+
+  const auto hdr = string_attributes(out);
+  const std::map<std::string, std::string> want = {
+      {"proden:passes", "8"},
+      {"proden:spp", "32.000000"},
+      {"proden:inputs", "HDR+ALB+NRM+DEP"},
+      {"proden:denoiser", "nlmeans"},
+      {"proden:mixer", "closed-form-stein"},
+      {"proden:mixer_weights", "none"},
+      {"proden:divergence", "analytic"},
+      {"proden:t_test", "on"},
+      {"proden:variance_source", "between_passes"},
+      {"proden:low_confidence", "false"},
+      {"proden:estimated_mse_source", "variance+sure"},
+  };
+  for (const auto& [k, value] : want) {
+    INFO(k);
+    REQUIRE(hdr.count(k));
+    CHECK(hdr.at(k) == value);
+  }
+  REQUIRE(hdr.count("proden:estimated_mse"));
+  CHECK(std::stod(hdr.at("proden:estimated_mse")) == est);  // written to round-trip
+  CHECK(string_attributes(out, "Software").at("Software").rfind("proden ", 0) == 0);
+
+  // Other choices show in the header; the options are the daemon's spellings.
+  const std::string out2 = s.file("g.exr");
+  const Run g = proden("denoise -q --json --denoiser gaussian --mixer network --no-ttest --out " +
+                           out2 + join(passes("cornell")),
+                       s);
+  INFO(g.err);
+  REQUIRE(g.code == 0);
+  const auto h2 = string_attributes(out2);
+  CHECK(h2.at("proden:denoiser") == "gaussian");
+  CHECK(h2.at("proden:mixer").rfind("network-w", 0) == 0);
+  CHECK(h2.at("proden:mixer_weights") == "built-in pdnet.pdnw");
+  CHECK(h2.at("proden:t_test") == "off");
+  CHECK(h2.at("proden:inputs") == "HDR");  // the Gaussian reads no features
+  const auto jg = nlohmann::json::parse(g.out);
+  CHECK(jg["pipeline"]["settings"]["denoiser"] == "gaussian");
+  CHECK(jg["estimated_mse"].get<double>() != est);
+
+  // Denoiser none: the render, and its variance as the error.
+  const std::string out3 = s.file("n.exr");
+  const Run nn =
+      proden("denoise -q --aov --json --denoiser none --out " + out3 + join(passes("cornell")), s);
+  REQUIRE(nn.code == 0);
+  const auto jn = nlohmann::json::parse(nn.out);
+  CHECK(jn["estimated_mse_source"] == "variance");
+  const auto vn = read_exr(out3, {"variance.R", "variance.G", "variance.B"}, &w, &h);
+  const auto rn = read_exr(out3, {"R", "G", "B"}, &w, &h);
+  const auto xn = read_exr(out3, {"render.R", "render.G", "render.B"}, &w, &h);
+  double mv = 0;
+  for (std::size_t c = 0; c < 3; ++c) {
+    for (float q : vn[c]) mv += q;
+  }
+  CHECK(jn["estimated_mse"].get<double>() == Approx(mv / n).epsilon(1e-9));
+  CHECK(rn == xn);
+  CHECK(string_attributes(out3).at("proden:denoiser") == "none");
+  Imf::InputFile in3(out3.c_str());
+  CHECK(in3.header().channels().findChannel("denoised.R") == nullptr);
+}
+
+TEST_CASE("denoise: contradicting or misplaced pipeline options are refused by their flag, exit 2",
+          "[cli]") {
+  Scratch s;
+  const std::string out = s.file("o.exr");
+  const auto ps = passes("cornell");
+  const Run c = proden(
+      "denoise -q --mixer stein --closed-form-rule inverse-error --out " + out + " " + ps[0], s);
+  CHECK(c.code == 2);
+  CHECK_THAT(c.err, Contains("--closed-form-rule") && Contains("contradicts mixer stein"));
+  const Run w = proden("denoise -q --weights " + sample("../training/weights/pdnet.pdnw") +
+                           " --out " + out + " " + ps[0],
+                       s);
+  CHECK(w.code == 2);
+  CHECK_THAT(w.err, Contains("--weights") && Contains("network"));
+  CHECK_FALSE(fs::exists(out));
+  // The old spellings still work: --mixer closed-form --closed-form-rule inverse-error.
+  const Run ok = proden(
+      "denoise -q --json --mixer closed-form --closed-form-rule inverse-error "
+      "--out " +
+          out + " " + ps[0] + " " + ps[1],
+      s);
+  REQUIRE(ok.code == 0);
+  CHECK(nlohmann::json::parse(ok.out)["pipeline"]["mixer"] == "closed-form-inverse-error");
 }

@@ -53,7 +53,7 @@ protocol::JobSpec job_spec(const fs::path& root, const std::string& id,
   s.id = id;
   s.name = "shot";
   s.output.dir = (root / "out").string();
-  s.pipeline.denoiser = denoiser;
+  s.pipeline = protocol::PipelineSpec::from_json({{"denoiser", denoiser}});
   s.spp = 4.0;  // the synthetic files do not say
   s.created = "2026-01-01T00:00:00.000Z";
   return s;

@@ -50,7 +50,7 @@ struct EngineRig {
     protocol::JobSpec s;
     s.name = name;
     s.output.dir = (t.path() / "allowed" / (name + "_out")).string();
-    s.pipeline.denoiser = denoiser;
+    s.pipeline = protocol::PipelineSpec::from_json({{"denoiser", denoiser}});
     s.spp = 4.0;  // the synthetic files do not say
     return engine->create_job(s);
   }
@@ -118,7 +118,7 @@ TEST_CASE("Engine: watched files are ingested once", "[daemon][engine]") {
   protocol::JobSpec s;
   s.name = "w";
   s.output.dir = (rig.t.path() / "allowed" / "w_out").string();
-  s.pipeline.denoiser = "none";
+  s.pipeline = protocol::PipelineSpec::from_json({{"denoiser", "none"}});
   s.watch = protocol::WatchSpec{watch.string(), "p{pass}_{frame}.exr"};
   const auto job = rig.engine->create_job(s);
   test::write_pass(watch / "pa_0002.exr", "a", 4);

@@ -115,16 +115,32 @@ TEST_CASE("estimate_error: unbiased against the truth, intervals cover it", "[er
   }
 }
 
-TEST_CASE("estimate_error: equals the pipeline's estimated_result_mse", "[error_estimate]") {
+TEST_CASE("estimate_error: the pipeline's result error, SURE of z", "[error_estimate]") {
   const Image truth = smooth_truth(48, 40);
   const FrameEstimate f = accumulate(truth, 4, 0.15f, 9);
   PipelineOptions o;
   o.features = false;
-  const PipelineResult r = run_pipeline(f, o);
+  Pipeline p(o);
+  p.commit();
   ErrorContext ctx{.spp = 16, .passes = 4, .noise_scope = NoiseScope::pixel};
+  const PipelineResult r = p.execute(f, ctx);
+  // The documented formula, computed here independently: mean of
+  // (1-a) v + a SURE - a (1-a) (y-x)^2, floored at mean (1-a)^2 v.
+  double sum = 0, floor = 0;
+  for (std::size_t i = 0; i < f.mean.data().size(); ++i) {
+    const double a = r.alpha.data()[i], v = f.variance.data()[i];
+    const double d = static_cast<double>(r.denoised.data()[i]) - f.mean.data()[i];
+    sum += (1 - a) * v + a * r.sure.data()[i] - a * (1 - a) * d * d;
+    floor += (1 - a) * (1 - a) * v;
+  }
+  const double n = static_cast<double>(f.mean.data().size());
+  CHECK(r.estimated_error.mse == Approx(std::max(sum, floor) / n).epsilon(1e-9));
+  CHECK(r.estimated_error.spp == 16.0);
+  CHECK(r.estimated_error.source == "variance+sure");
+  // execute() and a direct call agree.
   const EstimatedError e =
       estimate_error({&f.mean, &f.variance, &r.result, &r.denoised, &r.alpha, &r.sure}, ctx);
-  CHECK(e.mse == Approx(estimated_result_mse(f.mean, f.variance, r)).epsilon(1e-9));
+  CHECK(e.relmse == Approx(r.estimated_error.relmse).epsilon(1e-12));
 }
 
 TEST_CASE("estimate_error: fewer passes and frame-wide noise widen the interval",

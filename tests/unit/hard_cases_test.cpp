@@ -80,12 +80,19 @@ void check_sane(const FrameEstimate& e, const PipelineResult& r) {
 // checking both.
 PipelineResult run_checked(const FrameAccumulator& f, const PipelineOptions& o = small_options()) {
   const FrameEstimate e = f.estimate();
-  static const network::NetworkMixer net(network::builtin_network());
   {
     INFO("learned mixer");
-    check_sane(e, run_pipeline(e, o, nullptr, &net));
+    PipelineOptions net = o;
+    net.mixer = MixerKind::network;
+    Pipeline pipeline(net);
+    pipeline.commit();
+    check_sane(e, pipeline.execute(e));
   }
-  const PipelineResult r = run_pipeline(e, o);
+  PipelineOptions closed = o;
+  closed.mixer = MixerKind::closed_form;
+  Pipeline pipeline(closed);
+  pipeline.commit();
+  const PipelineResult r = pipeline.execute(e);
   check_sane(e, r);
   return r;
 }

@@ -153,7 +153,9 @@ TEST_CASE("mean SURE matches the true MSE of the denoised image", "[pipeline][su
     o.nlmeans.patch_radius = 2;
     o.divergence = method;
     o.probes.count = 8;
-    const PipelineResult r = run_pipeline(f, o);
+    Pipeline pipeline(o);
+    pipeline.commit();
+    const PipelineResult r = pipeline.execute(f);
     // Interior only: near the border the analytic derivative is approximate by design.
     double s_sure = 0, s_mse = 0, s_d2 = 0;
     int n = 0;
@@ -195,11 +197,15 @@ TEST_CASE("tiled runs equal the whole-image run", "[pipeline][tiles]") {
     o.divergence = method;
     o.probes.count = 2;
     o.tile = 4096;
-    const PipelineResult whole = run_pipeline(f, o);
+    Pipeline pipeline(o);
+    pipeline.commit();
+    const PipelineResult whole = pipeline.execute(f);
     REQUIRE(whole.inputs.albedo);
     for (int tile : {1, 7, 16, 33}) {  // smaller than the halo, and not dividing 50x37
       o.tile = tile;
-      const PipelineResult tiled = run_pipeline(f, o);
+      pipeline.set_options(o);
+      pipeline.commit();
+      const PipelineResult tiled = pipeline.execute(f);
       INFO("tile " << tile << " halo " << tiled.halo << " divergence " << tiled.divergence);
       CHECK(max_rel_diff(tiled.result, whole.result) <= 1e-6);
       CHECK(max_rel_diff(tiled.denoised, whole.denoised) <= 1e-6);
@@ -242,7 +248,9 @@ TEST_CASE("t-test: a biased denoiser is rejected as the variance shrinks", "[pip
   FrameEstimate f;
   f.mean = truth;
   f.variance = Image(40, 40, 3, 1e-10f);
-  const PipelineResult r = run_pipeline(f, {});
+  Pipeline pipeline;
+  pipeline.commit();
+  const PipelineResult r = pipeline.execute(f);
   CHECK(max_rel_diff(r.result, f.mean) < 1e-4);
 }
 
@@ -316,14 +324,17 @@ TEST_CASE("the result's estimated MSE matches its true MSE on known truth", "[pi
   o.nlmeans.search_radius = 4;
   o.nlmeans.patch_radius = 2;
   o.nlmeans.use_features = false;
-  const PipelineResult r = run_pipeline(f, o);
+  Pipeline pipeline(o);
+  pipeline.commit();
+  const PipelineResult r = pipeline.execute(f);
   double se = 0;
   for (std::size_t i = 0; i < truth.data().size(); ++i) {
     const double e = r.result.data()[i] - truth.data()[i];
     se += e * e;
   }
   const double true_mse = se / static_cast<double>(truth.data().size());
-  const double est = estimated_result_mse(f.mean, f.variance, r);
+  const double est = r.estimated_error.mse;
+  CHECK(r.estimated_error.source == error_source::variance_sure);
   INFO("estimated " << est << " true " << true_mse);
   CHECK(est == Approx(true_mse).epsilon(0.15));
   // The formula it replaced, (1-a)^2 var + a^2 max(SURE, 0), misses the x-y covariance.

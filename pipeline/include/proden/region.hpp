@@ -59,6 +59,16 @@ class Buffer {
         channels_(channels),
         data_(rect.area() * static_cast<std::size_t>(channels), fill) {}
 
+  // Re-covers `rect` with `channels` planes of `fill`, keeping the allocation when it is large
+  // enough: scratch buffers reused from run to run.
+  void reset(const Rect& rect, int channels, float fill = 0.0f) {
+    rect_ = rect;
+    channels_ = channels;
+    data_.assign(rect.area() * static_cast<std::size_t>(channels), fill);
+  }
+  // Floats allocated (reserved) by this buffer.
+  std::size_t capacity() const { return data_.capacity(); }
+
   const Rect& rect() const { return rect_; }
   int channels() const { return channels_; }
   View view() const { return {data_.data(), rect_, channels_}; }

@@ -27,6 +27,9 @@ class Denoiser {
   virtual int radius() const = 0;
   // True if denoise() can fill dydx with the Jacobian diagonal dy_p/dx_p per channel.
   virtual bool has_derivative() const = 0;
+  // True for a denoiser that must see the whole frame at once (a global solve): the pipeline runs
+  // it once over the full image before the tiled stages, and the tiles read y from that run.
+  virtual bool whole_frame() const { return false; }
   // Computes y (and dydx when non-null and supported) over `out`, which must lie in the image.
   // y and dydx must be 3-channel buffers covering `out`.
   virtual void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const = 0;

@@ -10,6 +10,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "proden/progressive.hpp"
 #include "proden/protocol/estimate.hpp"
 
 namespace proden::protocol {
@@ -42,9 +43,16 @@ struct OutputSpec {
   bool aovs = true;  // accumulate and write the renderer's AOVs beside the result
 };
 
+// A job's `pipeline` object: the keys the client set, as sent (validated; echoed back with
+// `denoiser` and `mixer` defaulting to "auto"), and the options they mean
+// (protocol/pipeline_spec.hpp: the same vocabulary as the CLI's flags).
 struct PipelineSpec {
-  std::string denoiser = "auto";
-  std::string mixer = "auto";
+  nlohmann::json given = nlohmann::json::object();
+  PipelineOptions options;
+
+  // From a `pipeline` object; throws PipelineError naming the key (parse_job_spec reports it as
+  // 400 invalid_field "pipeline.<key>: ...").
+  static PipelineSpec from_json(const nlohmann::json& given);
 };
 
 // A job as created by POST /api/v1/jobs and reported by GET /api/v1/jobs[/{id}].
@@ -88,9 +96,9 @@ struct FrameStatus {
   double spp = 0.0;
   std::uint64_t version = 0;  // increases with each published update
   std::string updated;        // RFC 3339 UTC of the last published version
-  // The pipeline's own error estimate of the published result, mean over pixels and channels:
-  // (1-alpha)^2 Var[x] + alpha^2 SURE(y) ("source":"variance+sure"), or Var[x] alone when the
-  // job's denoiser is "none" ("source":"variance").
+  // The pipeline's own error estimate of the published result (PipelineResult::estimated_error):
+  // the mean of the result's SURE ("source":"variance+sure"), or of Var[x] when nothing was
+  // denoised ("source":"variance").
   double estimated_mse = 0.0;
   std::string estimated_mse_source = "variance";
   int width = 0, height = 0;

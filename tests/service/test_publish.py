@@ -1,0 +1,189 @@
+"""The daemon publishes frames the way `proden denoise` writes them (one pipeline object, one
+vocabulary, one publish path): the published EXR carries the `proden:` provenance header and the
+`mixvariance` layer, a job's `pipeline.denoiser` is honoured, and the CLI run with the same options
+on the same passes writes the same header and the same result. Real daemon, real CLI, stdlib only."""
+import json
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import unittest
+
+sys.path.insert(0, os.path.dirname(__file__))
+from harness import BINARY, CORNELL, Daemon, TempRoot  # noqa: E402
+
+HEADER_FIELDS = ["proden:passes", "proden:spp", "proden:inputs", "proden:denoiser", "proden:mixer",
+                 "proden:mixer_weights", "proden:divergence", "proden:t_test",
+                 "proden:variance_source", "proden:low_confidence", "proden:estimated_mse",
+                 "proden:estimated_mse_source"]
+LAYERS = ["render", "variance", "denoised", "alpha", "sure", "mixvariance"]
+
+
+def exr_header(data):
+    """Parses a single-part OpenEXR header: {name: (type, raw bytes)} (OpenEXR file layout spec)."""
+    if data[:4] != b"\x76\x2f\x31\x01":
+        raise AssertionError("not an OpenEXR file")
+    pos, attrs = 8, {}
+    while True:
+        end = data.index(b"\0", pos)
+        name, pos = data[pos:end].decode(), end + 1
+        if not name:
+            return attrs
+        end = data.index(b"\0", pos)
+        typ, pos = data[pos:end].decode(), end + 1
+        (size,) = struct.unpack_from("<i", data, pos)
+        attrs[name] = (typ, data[pos + 4:pos + 4 + size])
+        pos += 4 + size
+
+
+def strings(attrs):
+    return {k: v.decode() for k, (t, v) in attrs.items() if t == "string"}
+
+
+def channels(attrs):
+    """Channel names of a `chlist` attribute: name NUL, then 16 bytes per channel; NUL ends it."""
+    raw, pos, names = attrs["channels"][1], 0, []
+    while raw[pos:pos + 1] != b"\0":
+        end = raw.index(b"\0", pos)
+        names.append(raw[pos:end].decode())
+        pos = end + 1 + 16
+    return names
+
+
+class PublishTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = TempRoot()
+        cls.root = cls.tmp.__enter__()
+        cls.d = Daemon(cls.root).start()
+
+    @classmethod
+    def tearDownClass(cls):
+        rc = cls.d.stop()
+        cls.tmp.__exit__(None, None, None)
+        assert rc == 0, rc
+
+    def publish(self, name, pipeline=None):
+        """A job fed CORNELL[0], CORNELL[1] by upload; returns (job id, frame status, EXR bytes)."""
+        extra = {"pipeline": pipeline} if pipeline is not None else {}
+        jid = self.d.create_job(name, **extra)
+        for p, path in (("a", CORNELL[0]), ("b", CORNELL[1])):
+            with open(path, "rb") as f:
+                s, b = self.d.json("PUT", "/api/v1/jobs/%s/frames/1/passes/%s" % (jid, p), f.read())
+            self.assertEqual(s, 202, b)
+        self.d.wait_passes(jid, 1, 2)
+        s, status = self.d.frame(jid, 1)
+        self.assertEqual(s, 200, status)
+        s, _, exr = self.d.request("GET", "/api/v1/jobs/%s/frames/1/image?format=exr" % jid)
+        self.assertEqual(s, 200)
+        return jid, status, exr
+
+    def cli(self, flags, out):
+        """`proden denoise --aov` on the same two passes; returns its --json summary."""
+        r = subprocess.run([BINARY, "denoise", "-q", "--aov", "--json", "--out", out] + flags +
+                           [CORNELL[0], CORNELL[1]], capture_output=True, timeout=120)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        return json.loads(r.stdout)
+
+    def assert_same_result(self, a, b):
+        """`proden eval` of one file against the other: their results are identical."""
+        r = subprocess.run([BINARY, "eval", "--json", "--ref", a, b], capture_output=True,
+                           timeout=60)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertEqual(json.loads(r.stdout)["results"][0]["rmse"], 0.0)
+
+    def test_default_job_publishes_provenance_and_mixvariance_like_the_cli(self):
+        jid, status, exr = self.publish("pub_default")
+        attrs = exr_header(exr)
+        hdr = strings(attrs)
+        for k in HEADER_FIELDS:
+            self.assertIn(k, hdr)
+        self.assertTrue(hdr["Software"].startswith("proden "))
+        self.assertEqual(hdr["proden:passes"], "2")
+        self.assertEqual(hdr["proden:denoiser"], "nlmeans")
+        self.assertEqual(hdr["proden:inputs"], "HDR+ALB+NRM+DEP")
+        chans = channels(attrs)
+        for layer in LAYERS:
+            for c in "RGB":
+                self.assertIn("%s.%s" % (layer, c), chans)
+        # The header's estimated error is the frame status's, to the last bit.
+        self.assertEqual(float(hdr["proden:estimated_mse"]), status["estimated_mse"])
+        self.assertEqual(hdr["proden:estimated_mse_source"], status["estimated_mse_source"])
+        self.assertEqual(status["estimated_error"]["mse"], status["estimated_mse"])
+        self.assertEqual(status["estimated_error"]["source"], "variance+sure")
+        self.assertEqual(json.loads(hdr["proden:estimated_error"]), status["estimated_error"])
+        s, h, png = self.d.request(
+            "GET", "/api/v1/jobs/%s/frames/1/image?format=png&layer=mixvariance" % jid)
+        self.assertEqual((s, png[:8]), (200, b"\x89PNG\r\n\x1a\n"))
+
+        # The CLI on the same passes with the same (default) options: same header, same layers,
+        # same result, same estimated error.
+        with tempfile.TemporaryDirectory() as tmp:
+            published = os.path.join(tmp, "daemon.exr")
+            with open(published, "wb") as f:
+                f.write(exr)
+            out = os.path.join(tmp, "cli.exr")
+            summary = self.cli([], out)
+            with open(out, "rb") as f:
+                cli_attrs = exr_header(f.read())
+            cli_hdr = strings(cli_attrs)
+            for k in HEADER_FIELDS + ["Software"]:
+                self.assertEqual(cli_hdr[k], hdr[k], k)
+            self.assertEqual(sorted(channels(cli_attrs)), sorted(chans))
+            self.assertEqual(summary["estimated_mse"], status["estimated_mse"])
+            self.assertEqual(summary["estimated_mse_source"], status["estimated_mse_source"])
+            self.assertEqual(summary["estimated_error"], status["estimated_error"])
+            self.assert_same_result(published, out)
+
+    def test_job_denoiser_gaussian_is_honoured(self):
+        jid, status, exr = self.publish("pub_gauss", {"denoiser": "gaussian", "tile": 64})
+        hdr = strings(exr_header(exr))
+        self.assertEqual(hdr["proden:denoiser"], "gaussian")
+        self.assertEqual(hdr["proden:inputs"], "HDR")  # the Gaussian reads no features
+        s, job = self.d.json("GET", "/api/v1/jobs/" + jid)
+        self.assertEqual(job["pipeline"], {"denoiser": "gaussian", "mixer": "auto", "tile": 64})
+        with tempfile.TemporaryDirectory() as tmp:
+            published = os.path.join(tmp, "daemon.exr")
+            with open(published, "wb") as f:
+                f.write(exr)
+            out = os.path.join(tmp, "cli.exr")
+            summary = self.cli(["--denoiser", "gaussian", "--tile", "64"], out)
+            self.assertEqual(summary["pipeline"]["denoiser"], "gaussian")
+            self.assertEqual(summary["estimated_mse"], status["estimated_mse"])
+            self.assert_same_result(published, out)
+            # ... and it is not what the default denoiser publishes.
+            default = os.path.join(tmp, "default.exr")
+            self.cli([], default)
+            r = subprocess.run([BINARY, "eval", "--json", "--ref", published, default],
+                               capture_output=True, timeout=60)
+            self.assertGreater(json.loads(r.stdout)["results"][0]["rmse"], 0.0)
+
+    def test_job_denoiser_none_publishes_the_render(self):
+        jid, status, exr = self.publish("pub_none", {"denoiser": "none"})
+        attrs = exr_header(exr)
+        hdr = strings(attrs)
+        self.assertEqual(hdr["proden:denoiser"], "none")
+        self.assertEqual(hdr["proden:estimated_mse_source"], "variance")
+        self.assertEqual(status["estimated_error"]["source"], "variance")
+        self.assertNotIn("mixvariance.R", channels(attrs))
+        s, b = self.d.json("GET", "/api/v1/jobs/%s/frames/1/image?format=png&layer=mixvariance" % jid)
+        self.assertEqual((s, b["error"]["code"]), (404, "layer_not_available"))
+
+    def test_pipeline_options_are_validated_by_name(self):
+        for pipeline, field in (({"tile": 4}, "pipeline.tile"),
+                                ({"frobnicate": 1}, "pipeline.frobnicate"),
+                                ({"weights": "/etc/passwd"}, "pipeline.weights"),
+                                ({"t_test": "no"}, "pipeline.t_test"),
+                                ({"mixer": "stein", "closed_form_rule": "inverse-error"},
+                                 "pipeline.closed_form_rule"),
+                                ({"denoiser": "magic"}, "pipeline.denoiser")):
+            s, b = self.d.json("POST", "/api/v1/jobs", {
+                "name": "bad", "output": {"dir": self.d.allowed}, "pipeline": pipeline})
+            self.assertEqual(s, 400, (pipeline, b))
+            self.assertEqual(b["error"]["code"], "invalid_field")
+            self.assertTrue(b["error"]["message"].startswith(field + ": "), b)
+
+
+if __name__ == "__main__":
+    unittest.main(verbosity=2)
