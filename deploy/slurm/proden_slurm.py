@@ -167,18 +167,25 @@ def cmd_task(a):
     cmd = render_command(a, frame, p, tmp)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
 
+    def cleanup():
+        d, stem = os.path.dirname(final), os.path.basename(final)[:-4]
+        for n in os.listdir(d):  # ours and the renderer's own temporary names
+            if n.startswith("." + stem) and ".partial" in n:
+                try:
+                    os.remove(os.path.join(d, n))
+                except OSError:
+                    pass
+
     def on_term(signum, _frame):  # scancel: stop the renderer, leave no partial file behind
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        try:
-            os.remove(tmp)
-        except OSError:
-            pass
         print("PRODEN_TASK index=%d frame=%d pass=%d state=cancelled seconds=%.3f"
               % (i, frame, p, time.monotonic() - t0), flush=True)
+        proc.terminate()
+        try:
+            proc.wait(2)  # well within Slurm's KillWait
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        cleanup()
         os._exit(128 + signum)
 
     signal.signal(signal.SIGTERM, on_term)
@@ -187,10 +194,7 @@ def cmd_task(a):
     if proc.returncode != 0 or not os.path.isfile(tmp) or os.path.getsize(tmp) == 0:
         sys.stdout.write(out.decode(errors="replace")[-4000:])
         log("render failed (exit %s): %s" % (proc.returncode, " ".join(map(shlex.quote, cmd))))
-        try:
-            os.remove(tmp)
-        except OSError:
-            pass
+        cleanup()
         return 1
     os.replace(tmp, final)
     print("PRODEN_TASK index=%d frame=%d pass=%d state=rendered seconds=%.3f out=%s"

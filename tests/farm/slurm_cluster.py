@@ -137,12 +137,17 @@ class SlurmCluster:
 
     def tasks(self, job_id):
         """{task index: state} of an array's tasks still known to slurmctld (MinJobAge keeps
-        finished ones for 10 minutes): PENDING, RUNNING, COMPLETED, CANCELLED, FAILED..."""
+        finished ones for 10 minutes): PENDING, RUNNING, COMPLETED, CANCELLED, FAILED...
+        Tasks never started stay folded in the array's own record; once all of them are
+        cancelled that record loses their indices (its ArrayTaskId becomes NO_VAL): its state is
+        then under the key None."""
         out = self.run("scontrol", "-o", "show", "job", str(job_id), check=False)
         states = {}
         for line in out.split("\n"):
             f = dict(kv.split("=", 1) for kv in line.split() if "=" in kv)
-            if f.get("ArrayTaskId", "").isdigit():
+            if f.get("ArrayTaskId") == "4294967294":  # NO_VAL: the folded, now empty record
+                states[None] = f.get("JobState")
+            elif f.get("ArrayTaskId", "").isdigit():
                 states[int(f["ArrayTaskId"])] = f.get("JobState")
             elif "ArrayTaskId" in f:  # a pending range, e.g. 4-11 or 4-11%2
                 rng = f["ArrayTaskId"].split("%")[0]

@@ -45,7 +45,7 @@ def exr_header_value(path, key):
     for line in r.stdout.split("\n"):
         line = line.strip()
         if line.startswith(key + ":"):
-            v = line.split(":", 1)[1].strip()
+            v = line[len(key) + 1:].strip()
             return v[1:-1].replace('\\"', '"') if v.startswith('"') else v
     return None
 
@@ -61,8 +61,8 @@ class SlurmEndToEnd(unittest.TestCase):
                 print(cl.read_logs(), file=sys.stderr)
                 for f in sorted(os.listdir(root)):
                     if f.startswith("proden-") and f.endswith(".out"):
-                        print("== " + f, open(os.path.join(root, f)).read()[-2000:],
-                              file=sys.stderr)
+                        with open(os.path.join(root, f)) as fh:
+                            print("== " + f, fh.read()[-2000:], file=sys.stderr)
                 raise
             finally:
                 d.stop()
@@ -102,21 +102,31 @@ class SlurmEndToEnd(unittest.TestCase):
         self.assertGreaterEqual(cancels[0]["version"], MIN_PASSES)
 
         # Every task is accounted for: rendered, skipped (started after convergence) or cancelled
-        # (queued or running when it converged), and the array was cut short.
+        # (queued or running when it converged), Slurm agrees, and the array was cut short.
         states = cl.tasks(array)
-        self.assertEqual(sorted(states), list(range(PASSES)), states)
         logs = {}
         for i in range(PASSES):
             p = os.path.join(root, "proden-%s_%d.out" % (array, i))
-            logs[i] = open(p).read() if os.path.exists(p) else ""
+            if os.path.exists(p):
+                with open(p) as fh:
+                    logs[i] = fh.read()
+            else:
+                logs[i] = ""
         rendered = [i for i in range(PASSES) if "state=rendered" in logs[i]]
         skipped = [i for i in range(PASSES) if "state=skipped" in logs[i]]
-        cancelled = [i for i, s in states.items() if s == "CANCELLED"]
-        for i in range(PASSES):
-            self.assertIn(states[i], ("COMPLETED", "CANCELLED"), (i, states[i], logs[i]))
-        self.assertEqual(set(cancelled), set(cancels[0]["cancelled"]))
+        cancelled = cancels[0]["cancelled"]
         self.assertEqual(set(rendered) | set(skipped) | set(cancelled), set(range(PASSES)),
-                         (rendered, skipped, cancelled))
+                         (rendered, skipped, cancelled, states))
+        self.assertFalse(set(rendered) & set(cancelled), (rendered, cancelled))
+        for i in rendered + skipped:
+            self.assertEqual(states.get(i), "COMPLETED", (i, states, logs[i]))
+        for i in cancelled:
+            if i in states:  # split off the array record: cancelled queued, starting or rendering
+                self.assertEqual(states[i], "CANCELLED", (i, states))
+                if "PRODEN_TASK" in logs[i]:  # it had started rendering: stopped, said so
+                    self.assertIn("state=cancelled", logs[i])
+            else:            # never started: folded in the array's cancelled record
+                self.assertEqual(states.get(None), "CANCELLED", (i, states))
         self.assertLess(len(rendered), PASSES, "nothing was saved: every pass rendered")
         self.assertGreater(len(cancelled) + len(skipped), 0)
         files = [p for p in os.listdir(watch) if p.startswith("pass_")]
@@ -135,6 +145,16 @@ class SlurmEndToEnd(unittest.TestCase):
             time.sleep(0.5)
         self.assertEqual(f["passes"], len(rendered))
         self.assertEqual(len({p["content_hash"] for p in f["pass_list"]}), len(rendered))
+
+        # A task that starts now (requeued, or no monitor running) skips its render.
+        r = subprocess.run([sys.executable, os.path.join(REPO, "deploy", "slurm", "proden_slurm.py"),
+                            "task", "--url", d.url, "--job", info["job"], "--watch", watch,
+                            "--frames", "1", "--passes", str(PASSES), "--spp", str(SPP),
+                            "--blend", blend, "--blender", BLENDER, "--index", str(PASSES - 1)],
+                           capture_output=True, text=True, timeout=120)
+        self.assertEqual(r.returncode, 0, r.stderr)
+        self.assertIn("state=skipped", r.stdout)
+        self.assertFalse(os.path.exists(os.path.join(watch, "pass_%04d" % (PASSES - 1))))
 
         # The error object: in the frame, in the converged event, in the EXR header.
         e = f["estimated_error"]
