@@ -9,9 +9,13 @@ target, to measure the true relMSE of the final version against the committed 25
 at least that of the final one, so none may be reported converged: no `converged` event, and the
 frame status says `converged: false`.
 
-STATUS: written before the calibration; with the uncalibrated estimate (bias up to 10^4x low on
-such frames) it fails, so it is NOT registered in CTest yet. The calibration engineer registers it
-(label `farm`) when estimate_error() is calibrated (docs/error_estimate.md).
+STATUS: the point estimate is still uncalibrated (on these passes ~270x below the true relMSE);
+the test passes because the decision reads the interval's high end, which the frame-wide noise
+scope (POV-Ray: 15 degrees of freedom for the whole frame), the absolute sampling error of the
+pixel average and the consistency rule keep above the target. With the naive rule (converged when
+the point estimate meets the target) it fails: converged at version 2 with the true error 125x the
+target (checked by hand). Registered in CTest under the label `farm`; the calibration must keep it
+passing (docs/error_estimate.md).
 """
 import json
 import os
@@ -62,10 +66,11 @@ class PovrayConvergence(unittest.TestCase):
                                  "watch": {"dir": watch, "pattern": "pass_{pass}/beauty_####.exr"},
                                  "output": {"dir": os.path.join(d.allowed, name + "_out")}},
                                 **extra))
-        for k, f in enumerate(files):
+        status = None
+        for k, f in enumerate(files):  # one version per pass, as a farm delivers them
             place_atomic(f, os.path.join(watch, "pass_%02d" % k, "beauty_0001.exr"))
-        return job["id"], c.wait(job["id"], 1, until="version>%d" % (len(files) - 1),
-                                 timeout=300)
+            status = c.wait(job["id"], 1, until="version>%d" % k, timeout=120)
+        return job["id"], status
 
     def scenario(self, d, files):
         c = Client(d.url)
