@@ -184,8 +184,11 @@ class Client:
                 return None
             raise
 
-    def versions(self, job_id, frame):
-        return self.call("GET", "/api/v1/jobs/%s/frames/%d/versions" % (_q(job_id), int(frame)))
+    def history(self, job_id, frame):
+        """GET .../frames/N/history: every version the frame published, oldest first (each with
+        its estimated_error and converged). The images kept are the frame's `versions`."""
+        return self.call("GET", "/api/v1/jobs/%s/frames/%d/history"
+                         % (_q(job_id), int(frame)))["versions"]
 
     def image(self, job_id, frame, fmt="exr", layer=None, version=None):
         """The published image (bytes) of a frame: the latest version, or `version`."""

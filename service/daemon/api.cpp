@@ -2,7 +2,9 @@
 
 #include <spdlog/spdlog.h>
 
+#include "daemon/colour_map.hpp"
 #include "daemon/files.hpp"
+#include "daemon/web_assets.hpp"
 
 namespace proden::daemon {
 
@@ -33,6 +35,11 @@ bool mutating(http::verb v) {
          v == http::verb::patch;
 }
 
+// Reads that carry the daemon's data (everything but the probes and the dashboard's files).
+bool protected_read(const std::vector<std::string>& p) {
+  return !p.empty() && (p[0] == "api" || p[0] == "metrics");
+}
+
 bool constant_time_equal(std::string_view a, std::string_view b) {
   if (a.size() != b.size()) return false;
   unsigned char d = 0;
@@ -50,6 +57,25 @@ bool is_upload(http::verb v, const std::vector<std::string>& p) {
 
 [[noreturn]] void not_allowed(const char* allow) {
   throw ApiError(405, "method_not_allowed", std::string("allowed: ") + allow);
+}
+
+// GET /api/v1/colormaps: how each layer is drawn as a PNG, and the maps' colours for legends.
+json colour_maps_json() {
+  json maps = json::object();
+  for (ColourMap cm : {ColourMap::viridis, ColourMap::magma}) {
+    maps[std::string(name(cm))] = colour_stops(cm, 32);
+  }
+  json layers = json::object();
+  for (const char* l :
+       {"result", "render", "denoised", "alpha", "variance", "mixvariance", "sure", "error"}) {
+    const LayerView v = layer_view(l);
+    if (v.colour) {
+      layers[l] = {{"kind", "colour"}};
+    } else {
+      layers[l] = {{"kind", "scalar"}, {"colormap", name(v.map)}, {"scale", name(v.scale)}};
+    }
+  }
+  return {{"colormaps", maps}, {"layers", layers}};
 }
 
 }  // namespace
@@ -116,12 +142,12 @@ bool Api::authorized(const http::request_header<>& h) const {
 }
 
 std::optional<Response> Api::before_body(const http::request_header<>& h, BodyPolicy& policy) {
-  if (mutating(h.method()) && !authorized(h)) {
-    return error(401, "unauthorized", "this request needs Authorization: Bearer <token>");
-  }
   std::vector<std::string> path;
   std::map<std::string, std::string> query;
   split_target(std::string_view(h.target().data(), h.target().size()), path, query);
+  if ((mutating(h.method()) || (!config_.open_reads && protected_read(path))) && !authorized(h)) {
+    return error(401, "unauthorized", "this request needs Authorization: Bearer <token>");
+  }
   if (is_upload(h.method(), path)) {
     try {
       engine_.check_upload(path[3], path[5], path[7]);
@@ -170,9 +196,18 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
     r.body() = metrics_.render();
     return {r};
   }
-  if (n < 3 || p[0] != "api" || p[1] != "v1") {
+  if (n == 0 || p[0] != "api") {  // the dashboard's static files
+    if (config_.dashboard && (m == http::verb::get || m == http::verb::head)) {
+      if (auto r = WebAssets::builtin().serve(req)) return {std::move(*r)};
+      if (n == 0) {
+        throw ApiError(404, "not_found",
+                       "this proden was built without the dashboard (web/: npm ci, then rebuild; "
+                       "docs/dashboard.md)");
+      }
+    }
     throw ApiError(404, "not_found", "no such endpoint");
   }
+  if (n < 3 || p[1] != "v1") throw ApiError(404, "not_found", "no such endpoint");
   if (draining_ && m != http::verb::get) {
     throw ApiError(503, "unavailable", "the daemon is shutting down");
   }
@@ -190,6 +225,10 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
       }
     }
     return r;
+  }
+  if (n == 3 && p[2] == "colormaps") {
+    if (m != http::verb::get) not_allowed("GET");
+    return {json_response(200, colour_maps_json())};
   }
   if (p[2] != "jobs") throw ApiError(404, "not_found", "no such endpoint");
   if (n == 3) {
@@ -218,6 +257,14 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
     Response r{http::status::no_content, 11};
     return {r};
   }
+  if (n == 5 && p[4] == "history") {
+    if (m != http::verb::get) not_allowed("GET");
+    return {json_response(200, {{"job", id}, {"frames", engine_.job_history(id)}})};
+  }
+  if (n == 5 && p[4] == "quarantine") {
+    if (m != http::verb::get) not_allowed("GET");
+    return {json_response(200, {{"job", id}, {"quarantined", engine_.quarantined(id)}})};
+  }
   if (n == 5 && (p[4] == "pause" || p[4] == "resume")) {
     if (m != http::verb::post) not_allowed("POST");
     return {json_response(200, protocol::to_json(engine_.set_paused(id, p[4] == "pause")))};
@@ -239,14 +286,13 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
     if (m != http::verb::get) not_allowed("GET");
     return {json_response(200, protocol::to_json(engine_.frame(id, frame), true))};
   }
-  if (n == 7 && p[6] == "versions") {
+  if (n == 7 && p[6] == "history") {
     if (m != http::verb::get) not_allowed("GET");
-    return {json_response(200, engine_.versions(id, frame))};
+    return {json_response(
+        200, {{"job", id}, {"frame", frame}, {"versions", engine_.history(id, frame)}})};
   }
   if (n == 7 && p[6] == "image") {
     if (m != http::verb::get) not_allowed("GET");
-    const std::string format = query.count("format") ? query.at("format") : "exr";
-    const std::string layer = query.count("layer") ? query.at("layer") : "";
     std::optional<std::uint64_t> version;
     if (query.count("version")) {
       const std::string& v = query.at("version");
@@ -256,13 +302,21 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
       }
       version = std::stoull(v);
     }
-    const auto img = engine_.image(id, frame, format, layer, version);
+    const auto img =
+        engine_.image(id, frame, PreviewCache::Request::from_query(query), version);
+    Response r{http::status::ok, 11};
+    r.set(http::field::cache_control, "no-cache");
+    r.set(http::field::etag, img.etag);
+    r.set("X-Proden-Version", std::to_string(img.version));
+    for (const auto& [k, v] : img.headers) r.set(k, v);
+    const auto inm = req[http::field::if_none_match];
+    if (!inm.empty() && std::string_view(inm.data(), inm.size()) == img.etag) {
+      r.result(http::status::not_modified);
+      return {r};
+    }
     auto bytes = read_file(img.path);
     if (!bytes) throw ApiError(404, "not_found", "published image is not readable");
-    Response r{http::status::ok, 11};
     r.set(http::field::content_type, img.content_type);
-    r.set(http::field::cache_control, "no-cache");
-    r.set("X-Proden-Version", std::to_string(img.version));
     r.body().assign(reinterpret_cast<const char*>(bytes->data()), bytes->size());
     return {r};
   }

@@ -33,15 +33,18 @@ void check_keys(const json& j, std::initializer_list<const char*> keys, const st
 }  // namespace
 
 void apply_json(Config& c, const json& j) {
-  check_keys(j,
-             {"bind", "port", "state_dir", "allowed_roots", "token_file", "worker_threads",
-              "io_threads", "max_resident_frames", "log_level", "limits", "watch"},
-             "");
+  check_keys(
+      j,
+      {"bind", "port", "state_dir", "allowed_roots", "token_file", "open_reads", "dashboard",
+       "worker_threads", "io_threads", "max_resident_frames", "log_level", "limits", "watch"},
+      "");
   take(j, "bind", c.bind, "");
   take(j, "port", c.port, "");
   take(j, "state_dir", c.state_dir, "");
   take(j, "allowed_roots", c.allowed_roots, "");
   take(j, "token_file", c.token_file, "");
+  take(j, "open_reads", c.open_reads, "");
+  take(j, "dashboard", c.dashboard, "");
   take(j, "worker_threads", c.worker_threads, "");
   take(j, "io_threads", c.io_threads, "");
   take(j, "max_resident_frames", c.max_resident_frames, "");
@@ -96,6 +99,8 @@ json to_json(const Config& c) {
           {"state_dir", c.state_dir},
           {"allowed_roots", c.allowed_roots},
           {"token_file", c.token_file},
+          {"open_reads", c.open_reads},
+          {"dashboard", c.dashboard},
           {"worker_threads", c.worker_threads},
           {"io_threads", c.io_threads},
           {"max_resident_frames", c.max_resident_frames},

@@ -39,6 +39,10 @@ struct Config {
   std::string state_dir = "proden-state";
   std::vector<std::string> allowed_roots;
   std::string token_file;
+  // With a token file, reads (GET /api/v1/..., /metrics) need the token too unless this is set;
+  // /livez, /readyz and the dashboard's static files are always open.
+  bool open_reads = false;
+  bool dashboard = true;        // serve the dashboard from / (docs/dashboard.md)
   int worker_threads = 2;       // frames processed concurrently
   int io_threads = 2;           // HTTP threads
   int max_resident_frames = 2;  // accumulators cached in memory (others reload from state)

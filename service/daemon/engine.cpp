@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <random>
 
+#include "daemon/frame_history.hpp"
 #include "daemon/processor.hpp"
 #include "daemon/versions.hpp"
 #include "proden/io/pass_reader.hpp"
@@ -499,31 +500,9 @@ protocol::FrameStatus Engine::status(const Job& job, const Frame& fr) const {
   s.view_layers = fr.rec.view_layers;
   s.aovs = fr.rec.aovs;
   for (auto it = fr.rec.versions.rbegin(); it != fr.rec.versions.rend(); ++it) {
-    if (it->version <= fr.published_version) s.versions.push_back(it->version);
+    if (*it <= fr.published_version) s.versions.push_back(*it);
   }
   return s;
-}
-
-json Engine::versions(const std::string& id, long frame) const {
-  std::lock_guard lock(mu_);
-  auto job = find(id);
-  auto it = job->frames.find(frame);
-  if (it == job->frames.end()) {
-    throw ApiError(404, "not_found", "job " + id + " has no frame " + std::to_string(frame));
-  }
-  const Frame& fr = it->second;
-  json list = json::array();
-  for (auto v = fr.rec.versions.rbegin(); v != fr.rec.versions.rend(); ++v) {
-    if (v->version > fr.published_version) continue;
-    json e = to_json(*v);
-    e["path"] = version_file(job->spec, frame, v->version).string();
-    list.push_back(e);
-  }
-  return {{"job", id},
-          {"frame", frame},
-          {"latest", fr.published_version},
-          {"history", job->spec.output.history},
-          {"versions", list}};
 }
 
 std::vector<protocol::FrameStatus> Engine::frames(const std::string& id) const {
@@ -549,8 +528,53 @@ protocol::FrameStatus Engine::frame(const std::string& id, long frame) const {
 }
 
 Engine::ImageFile Engine::image(const std::string& id, long frame, const std::string& format,
-                                const std::string& layer, std::optional<std::uint64_t> wanted) {
-  PreviewCache::check_request(format, layer);
+                                const std::string& layer) {
+  PreviewCache::Request r;
+  r.format = format;
+  r.layer = layer;
+  return image(id, frame, r);
+}
+
+json Engine::history(const std::string& id, long frame) const {
+  {
+    std::lock_guard lock(mu_);
+    auto job = find(id);
+    if (!job->frames.count(frame)) {
+      throw ApiError(404, "not_found", "job " + id + " has no frame " + std::to_string(frame));
+    }
+  }
+  return FrameHistory::load(store_.history_path(id, frame));
+}
+
+json Engine::job_history(const std::string& id) const {
+  std::vector<long> frames;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& [no, fr] : find(id)->frames) {
+      if (fr.published_version > 0) frames.push_back(no);
+    }
+  }
+  json out = json::array();
+  for (long f : frames) {
+    out.push_back({{"frame", f}, {"versions", FrameHistory::load(store_.history_path(id, f))}});
+  }
+  return out;
+}
+
+json Engine::quarantined(const std::string& id) const {
+  std::lock_guard lock(mu_);
+  json all = find(id)->quarantine.to_json();
+  for (auto& q : all) {  // the API's form (as in a frame's `quarantined`)
+    q.erase("size");
+    q.erase("mtime_ns");
+  }
+  return all;
+}
+
+Engine::ImageFile Engine::image(const std::string& id, long frame,
+                                const PreviewCache::Request& request,
+                                std::optional<std::uint64_t> wanted) {
+  PreviewCache::check_request(request.format, request.layer);
   fs::path exr;
   std::uint64_t version = 0;
   {
@@ -565,13 +589,12 @@ Engine::ImageFile Engine::image(const std::string& id, long frame, const std::st
     exr = output_base(job->spec, frame).string() + ".exr";
     if (wanted && *wanted != version) {
       const bool kept = *wanted < version &&
-                        std::any_of(fr.rec.versions.begin(), fr.rec.versions.end(),
-                                    [&](const VersionEntry& v) { return v.version == *wanted; });
+                        std::find(fr.rec.versions.begin(), fr.rec.versions.end(), *wanted) !=
+                            fr.rec.versions.end();
       if (!kept) {
         std::string have;
         for (auto v = fr.rec.versions.rbegin(); v != fr.rec.versions.rend(); ++v) {
-          if (v->version <= version)
-            have += (have.empty() ? "" : ", ") + std::to_string(v->version);
+          if (*v <= version) have += (have.empty() ? "" : ", ") + std::to_string(*v);
         }
         throw ApiError(404, "version_not_available",
                        "frame " + std::to_string(frame) + " has no version " +
@@ -583,7 +606,7 @@ Engine::ImageFile Engine::image(const std::string& id, long frame, const std::st
   }
   ImageFile f;
   static_cast<PreviewCache::File&>(f) =
-      previews_.get(store_.cache_dir(id), exr, frame, version, format, layer);
+      previews_.get(store_.cache_dir(id), exr, frame, version, request);
   f.version = version;
   return f;
 }

@@ -64,11 +64,18 @@ class Engine {
   struct ImageFile : PreviewCache::File {
     std::uint64_t version = 0;  // the version served
   };
-  // The latest version, or `version` if given (404 version_not_available when not kept).
+  // The latest version, or `version` if given (404 version_not_available when its image is not
+  // kept, docs/api.md).
   ImageFile image(const std::string& id, long frame, const std::string& format,
-                  const std::string& layer, std::optional<std::uint64_t> version = {});
-  // GET .../frames/{frame}/versions (docs/api.md, "Versions").
-  nlohmann::json versions(const std::string& id, long frame) const;
+                  const std::string& layer);
+  ImageFile image(const std::string& id, long frame, const PreviewCache::Request& request,
+                  std::optional<std::uint64_t> version = {});
+  // The frame's published versions (FrameHistory); 404 for an unknown job or frame.
+  nlohmann::json history(const std::string& id, long frame) const;
+  // Every frame's published versions: [{"frame", "versions"}], in frame order.
+  nlohmann::json job_history(const std::string& id) const;
+  // Every quarantined file of the job (frame, pass, path, kind, message, time).
+  nlohmann::json quarantined(const std::string& id) const;
   // Blocks until no frame is queued or running (tests, benchmarks); false on timeout.
   bool wait_idle(int timeout_ms);
 

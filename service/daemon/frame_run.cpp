@@ -7,6 +7,7 @@
 #include <cstdio>
 
 #include "daemon/files.hpp"
+#include "daemon/frame_history.hpp"
 #include "daemon/processor.hpp"
 #include "daemon/versions.hpp"
 #include "proden/error.hpp"
@@ -29,17 +30,20 @@ double seconds_since(Clock::time_point t0) {
 }
 
 // The frame status fields an event repeats.
+// One version as FrameHistory keeps it and events carry it (docs/api.md).
+json version_summary(const FrameRecord& rec) {
+  return {{"version", rec.version},
+          {"updated", rec.updated},
+          {"passes", rec.passes},
+          {"spp", rec.spp},
+          {"estimated_mse", rec.estimated_mse},
+          {"estimated_error", rec.estimated_error},
+          {"converged", rec.convergence.converged()}};
+}
+
 json frame_event(const protocol::JobSpec& spec, const FrameRecord& rec) {
-  json d = {{"job", spec.id},
-            {"name", spec.name},
-            {"frame", rec.frame},
-            {"version", rec.version},
-            {"passes", rec.passes},
-            {"spp", rec.spp},
-            {"updated", rec.updated},
-            {"estimated_mse", rec.estimated_mse},
-            {"estimated_error", rec.estimated_error},
-            {"converged", rec.convergence.converged()}};
+  json d = version_summary(rec);
+  d.update({{"job", spec.id}, {"name", spec.name}, {"frame", rec.frame}});
   return d;
 }
 
@@ -159,7 +163,7 @@ FrameRun::Outcome FrameRun::run(Input in) {
   if (accepted.empty() && !in.republish) return {Result::done, acc, aovs};
 
   // 3. Commit (persist), then publish.
-  std::vector<VersionEntry> dropped_versions;
+  std::vector<std::uint64_t> dropped_versions;
   try {
     auto t0 = Clock::now();
     const FrameEstimate est = acc->estimate(FrameProcessor::estimate_options(spec.pipeline));
@@ -200,10 +204,7 @@ FrameRun::Outcome FrameRun::run(Input in) {
       } else if (transition == Convergence::Transition::unconverged) {
         metrics_.inc("proden_frames_unconverged_total");
       }
-      dropped_versions = add_version(rec.versions,
-                                     {rec.version, rec.passes, rec.spp, rec.updated,
-                                      rec.convergence.converged(), rec.estimated_error},
-                                     spec.output.history);
+      dropped_versions = add_version(rec.versions, rec.version, spec.output.history);
       t0 = Clock::now();
       // The commit point: statistics and pass identities together, atomically.
       store_.save_frame(job_id, rec, *acc, *aovs);
@@ -231,15 +232,27 @@ FrameRun::Outcome FrameRun::run(Input in) {
     keep_version(outputs.front(), version_file(spec, frame_no, rec.version));
     for (const auto& v : dropped_versions) {
       std::error_code ec;
-      fs::remove(version_file(spec, frame_no, v.version), ec);
+      fs::remove(version_file(spec, frame_no, v), ec);
     }
     store_.save_published(job_id, frame_no, rec.version);
     metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
     hooks_.published(rec.version, outputs);
     metrics_.inc("proden_frame_updates_total");
-    json data = frame_event(spec, rec);
-    data["new_passes"] = accepted.size();
-    data["outputs"] = outputs;
+    // What the version is worth (FrameHistory: the dashboard's accuracy chart, farm scripts) and
+    // the event: one summary, the calibrated estimate included.
+    json entry = version_summary(rec);
+    entry["render_mse"] = out.render_mse;
+    try {
+      FrameHistory::append(store_.history_path(job_id, frame_no), entry);
+    } catch (const std::exception& e) {  // a history line lost; the version itself stands
+      spdlog::warn("job {} frame {}: history: {}", job_id, frame_no, e.what());
+    }
+    json data = entry;
+    data.update({{"job", job_id},
+                 {"name", spec.name},
+                 {"frame", frame_no},
+                 {"new_passes", accepted.size()},
+                 {"outputs", outputs}});
     events_.publish("frame", data);
     // The convergence change of this version, announced once it is published (again after a
     // crash between commit and publish: at least once).

@@ -25,8 +25,6 @@ std::uint64_t text_hash(const std::string& s) {
 json to_json(const FrameRecord& r) {
   json ingested = json::array();
   for (const auto& p : r.ingested) ingested.push_back(protocol::to_json(p));
-  json versions = json::array();
-  for (const auto& v : r.versions) versions.push_back(to_json(v));
   return {{"frame", r.frame},
           {"estimated_error", r.estimated_error},
           {"renderer", r.renderer},
@@ -34,7 +32,7 @@ json to_json(const FrameRecord& r) {
           {"view_layers", r.view_layers},
           {"aovs", r.aovs},
           {"convergence", r.convergence.persist()},
-          {"versions", versions},
+          {"versions", r.versions},
           {"version", r.version},
           {"updated", r.updated},
           {"estimated_mse", r.estimated_mse},
@@ -73,9 +71,7 @@ FrameRecord frame_record_from_json(const json& j) {
   r.view_layers = j.value("view_layers", std::vector<std::string>{});
   r.aovs = j.value("aovs", json::array());
   r.convergence = Convergence::restore(j.value("convergence", json()));
-  for (const auto& v : j.value("versions", json::array())) {
-    r.versions.push_back(version_entry_from_json(v));
-  }
+  r.versions = j.value("versions", std::vector<std::uint64_t>{});
   return r;
 }
 

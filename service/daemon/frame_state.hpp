@@ -16,7 +16,6 @@
 #include <nlohmann/json.hpp>
 
 #include "daemon/convergence.hpp"
-#include "daemon/versions.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/aov.hpp"
 #include "proden/protocol/api.hpp"
@@ -43,7 +42,7 @@ struct FrameRecord {
   std::vector<std::string> view_layers;
   nlohmann::json aovs = nlohmann::json::array();  // [{"name", "mode"}]
   Convergence convergence;
-  std::vector<VersionEntry> versions;  // oldest first, the latest last
+  std::vector<std::uint64_t> versions;  // the versions whose images are kept, ascending
 };
 
 nlohmann::json to_json(const FrameRecord& r);

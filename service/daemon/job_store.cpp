@@ -35,6 +35,10 @@ fs::path JobStore::published_path(const std::string& id, long frame) const {
   return job_dir(id) / "frames" / (std::to_string(frame) + ".pub");
 }
 
+fs::path JobStore::history_path(const std::string& id, long frame) const {
+  return job_dir(id) / "frames" / (std::to_string(frame) + ".history");
+}
+
 fs::path JobStore::upload_dir(const std::string& id, long frame) const {
   return job_dir(id) / "uploads" / std::to_string(frame);
 }

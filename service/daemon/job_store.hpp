@@ -1,8 +1,8 @@
 // JobStore: the daemon's state directory on disk (layout in docs/api.md, "State directory"):
 // one directory per job with job.json, quarantine.json, frames/<n>.state (+ <n>.pub, the version
-// last published), uploads/<n>/<pass>.exr and cache/. It saves atomically and durably and
-// recovers what a previous process left (start-up). It holds no in-memory job state; the engine
-// orders calls on one job.
+// last published, and <n>.history, the versions published), uploads/<n>/<pass>.exr and cache/.
+// It saves atomically and durably and recovers what a previous process left (start-up). It holds
+// no in-memory job state; the engine orders calls on one job.
 #pragma once
 
 #include <cstdint>
@@ -43,6 +43,7 @@ class JobStore {
   std::filesystem::path job_dir(const std::string& id) const;
   std::filesystem::path state_path(const std::string& id, long frame) const;
   std::filesystem::path published_path(const std::string& id, long frame) const;
+  std::filesystem::path history_path(const std::string& id, long frame) const;  // FrameHistory
   std::filesystem::path upload_dir(const std::string& id, long frame) const;
   std::filesystem::path cache_dir(const std::string& id) const;
 

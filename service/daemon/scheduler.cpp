@@ -17,6 +17,7 @@ void Scheduler::start() {
   std::lock_guard lock(mu_);
   stopping_ = false;
   for (int i = 0; i < workers_count_; ++i) workers_.emplace_back([this] { worker(); });
+  if (metrics_) metrics_->set("proden_worker_threads", workers_count_);
 }
 
 void Scheduler::request_stop() {
@@ -145,7 +146,12 @@ void Scheduler::worker() {
       ++running_;
       update_gauges();
     }
+    const auto t0 = std::chrono::steady_clock::now();
     run_(job, frame);
+    if (metrics_) {
+      metrics_->inc("proden_worker_busy_seconds_total", {},
+                    std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
     {
       std::lock_guard lock(mu_);
       --running_;

@@ -22,7 +22,8 @@ namespace proden::daemon {
 class Scheduler {
  public:
   using Run = std::function<void(const std::string& job, long frame)>;
-  // `metrics` (optional) receives the gauges proden_queue_depth and proden_frames_in_progress.
+  // `metrics` (optional) receives the gauges proden_queue_depth, proden_frames_in_progress and
+  // proden_worker_threads and the counter proden_worker_busy_seconds_total.
   Scheduler(int workers, Run run, Metrics* metrics = nullptr);
   ~Scheduler();
   Scheduler(const Scheduler&) = delete;

@@ -8,24 +8,6 @@
 namespace proden::daemon {
 
 namespace fs = std::filesystem;
-using nlohmann::json;
-
-json to_json(const VersionEntry& v) {
-  return {
-      {"version", v.version}, {"passes", v.passes},       {"spp", v.spp},
-      {"updated", v.updated}, {"converged", v.converged}, {"estimated_error", v.estimated_error}};
-}
-
-VersionEntry version_entry_from_json(const json& j) {
-  VersionEntry v;
-  v.version = j.at("version").get<std::uint64_t>();
-  v.passes = j.at("passes").get<int>();
-  v.spp = j.at("spp").get<double>();
-  v.updated = j.at("updated").get<std::string>();
-  v.converged = j.at("converged").get<bool>();
-  v.estimated_error = j.at("estimated_error");
-  return v;
-}
 
 fs::path version_file(const protocol::JobSpec& spec, long frame, std::uint64_t version) {
   const fs::path base = output_base(spec, frame);
@@ -34,14 +16,14 @@ fs::path version_file(const protocol::JobSpec& spec, long frame, std::uint64_t v
   return base.parent_path() / "versions" / (base.filename().string() + v);
 }
 
-std::vector<VersionEntry> add_version(std::vector<VersionEntry>& list, VersionEntry entry,
-                                      int history) {
-  std::erase_if(list, [&](const VersionEntry& e) { return e.version == entry.version; });
-  list.push_back(std::move(entry));
-  std::vector<VersionEntry> dropped;
+std::vector<std::uint64_t> add_version(std::vector<std::uint64_t>& list, std::uint64_t version,
+                                       int history) {
+  std::erase(list, version);
+  list.push_back(version);
+  std::vector<std::uint64_t> dropped;
   const std::size_t keep = static_cast<std::size_t>(std::max(0, history)) + 1;
   while (list.size() > keep) {
-    dropped.push_back(std::move(list.front()));
+    dropped.push_back(list.front());
     list.erase(list.begin());
   }
   return dropped;

@@ -1,7 +1,7 @@
 """Issue 13's daemon features against the real binary: a job target and min_passes; a frame that
 converges (SSE `converged` event, frame status, EXR header), keeps taking passes, and un-converges
 loudly when a later version misses the target with confidence; `proden wait` and its exit codes;
-the version history (output.history, GET .../versions, image?version=K); output.name's #### frame
+the version history (GET .../history, the images kept per output.history, image?version=K); output.name's #### frame
 padding; renderer AOVs in the published EXR; view_layer; and the convergence state surviving a
 restart. Passes: the committed Cornell passes (8 x 4 spp) and, to break convergence, one of them
 with strong Gaussian noise added (oiiotool). The relMSE target is put between the estimates
@@ -167,17 +167,21 @@ class ConvergenceTest(unittest.TestCase):
         self.assertIn("proden_frames_converged_total 1", body.decode())
         self.assertIn("proden_frames_unconverged_total 1", body.decode())
 
-        # Versions: latest + 2 kept; older ones refused by name; a kept one served as it was.
-        v = c.versions(jid, 1)
-        self.assertEqual([e["version"] for e in v["versions"]], [5, 4, 3])
-        self.assertEqual(v["latest"], 5)
-        for e in v["versions"]:
-            self.assertTrue(os.path.exists(e["path"]), e["path"])
-        self.assertFalse(os.path.exists(os.path.join(out, "versions", "shot_beauty.0001.v0002.exr")))
+        # History: every version, each with its estimate and convergence; images: latest + 2
+        # kept; older ones refused by name; a kept one served as it was.
+        h = c.history(jid, 1)
+        self.assertEqual([e["version"] for e in h], [1, 2, 3, 4, 5])
+        self.assertEqual([e["converged"] for e in h], [False, False, True, True, False])
+        self.assertEqual(h[-1]["estimated_error"], f["estimated_error"])
+        self.assertEqual(c.frame(jid, 1)["versions"], [5, 4, 3])
+        kept = lambda v: os.path.join(out, "versions", "shot_beauty.0001.v%04d.exr" % v)
+        for v in (5, 4, 3):
+            self.assertTrue(os.path.exists(kept(v)), kept(v))
+        self.assertFalse(os.path.exists(kept(2)))
         s, hdr, v3 = d.request("GET", "/api/v1/jobs/%s/frames/1/image?version=3" % jid)
         self.assertEqual((s, hdr["x-proden-version"]), (200, "3"))
-        self.assertEqual(json.loads(header(v["versions"][2]["path"])["proden:estimated_error"]),
-                         v["versions"][2]["estimated_error"])
+        self.assertEqual(json.loads(header(kept(3))["proden:estimated_error"]),
+                         h[2]["estimated_error"])
         s, hdr, latest = d.request("GET", "/api/v1/jobs/%s/frames/1/image" % jid)
         self.assertEqual((s, hdr["x-proden-version"]), (200, "5"))
         self.assertNotEqual(v3, latest)
@@ -198,7 +202,7 @@ class ConvergenceTest(unittest.TestCase):
         f = c.frame(jid, 1)
         self.assertEqual((f["version"], f["converged"]), (5, False))
         self.assertEqual(len(f["convergence"]["history"]), 2)
-        self.assertEqual(c.versions(jid, 1)["latest"], 5)
+        self.assertEqual(c.history(jid, 1)[-1]["version"], 5)
 
         # A job reading a view layer the passes lack: the pass is refused naming what they have.
         w2 = os.path.join(d.allowed, "vl")
