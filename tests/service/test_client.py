@@ -117,7 +117,11 @@ class ClientTest(unittest.TestCase):
         # The published image, and the CLI's exit code for a frame without passes.
         exr = c.image(jid, 1)
         self.assertEqual(exr[:4], b"\x76\x2f\x31\x01")  # OpenEXR magic
-        self.assertEqual(proden_client.main(["--url", d.url, "frame", jid, "9"]), 3)
+        # (reads need the token too: docs/api.md, open_reads)
+        tf = os.path.join(d.root, "token")
+        self.assertEqual(proden_client.main(["--url", d.url, "frame", jid, "1"]), 2)
+        self.assertEqual(proden_client.main(["--url", d.url, "--token-file", tf,
+                                             "frame", jid, "9"]), 3)
         c.delete_job(jid)
         with self.assertRaises(ProdenError) as e:
             c.job(jid)
