@@ -86,20 +86,24 @@ def main():
                         out = os.path.join(tmp, "z.exr")
                         j = denoise(a.proden, passes[:k], out, den, nofeat)
                         z = read_rgb(out)
-                        true = float(np.mean(((z - ref) ** 2 - ref_var) * w))
+                        sq = (z - ref) ** 2 - ref_var
+                        true = float(np.mean(sq * w))
+                        true_mse = float(np.mean(sq))
                         e = j["estimated_error"]
                         c = {"scene": scene, "level": level, "config": cfg, "passes": k,
                              "spp": j["estimated_error"]["spp"], "denoiser": den,
                              "est": e["relmse"], "low": e["relmse_low"], "high": e["relmse_high"],
-                             "true": true, "calibration": e.get("calibration"),
+                             "true": true, "est_mse": e["mse"], "true_mse": true_mse,
+                             "calibration": e.get("calibration"),
                              "consistent": e.get("consistent")}
                         c["ratio"] = c["est"] / true if true > 0 else math.inf
                         c["covered"] = (c["low"] is not None and c["low"] <= true and
                                         (c["high"] is None or true <= c["high"]))
                         cells.append(c)
-                        print("%-12s %5d %-7s %-3s est %.3g [%s, %s] true %.3g ratio %.3f" % (
-                            scene, level, den, cfg, c["est"], c["low"], c["high"], true,
-                            c["ratio"]), flush=True)
+                        print("%-12s %5d %-7s %-3s est %.3g [%s, %s] true %.3g ratio %.3f "
+                              "mse ratio %.3f" % (scene, level, den, cfg, c["est"], c["low"],
+                                                  c["high"], true, c["ratio"],
+                                                  e["mse"] / true_mse), flush=True)
     os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
     with open(a.out + ".json", "w") as f:
         json.dump(cells, f, indent=1)

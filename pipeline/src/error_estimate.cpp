@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <vector>
 
 namespace proden {
 namespace {
@@ -54,6 +55,39 @@ struct DiffVar {
   }
 };
 
+// The relMSE denominator's stand-in for the reference (docs/error_estimate.md, "The relMSE
+// denominator"). The result itself is a noisy stand-in: a firefly (z far above the reference) gets
+// a tiny weight 1/(z^2 + 0.01) where the true weight 1/(ref^2 + 0.01) is large, which biased
+// relMSE low, 1.3-35x at 2-8 spp and up to 1000x on the glass scene (bench/RESULTS.md,
+// "Calibration"). Instead: the local mean of z over a (2 kStandInRadius + 1)^2 window, whose
+// square is unbiased for ref^2 up to its own noise, minus that noise (the window mean of the
+// per-element error e, over the window's independent draws), floored at 0. Edges blur a little;
+// fireflies are diluted instead of hiding the error they cause.
+constexpr int kStandInRadius = 3;
+
+// Mean over the clamped (2r+1)^2 window of each element (separable running sums).
+std::vector<double> box_mean(const std::vector<double>& a, int W, int H, int r) {
+  std::vector<double> t(a.size()), out(a.size());
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      double s = 0;
+      for (int d = -r; d <= r; ++d)
+        s += a[static_cast<std::size_t>(y) * W + std::clamp(x + d, 0, W - 1)];
+      t[static_cast<std::size_t>(y) * W + x] = s;
+    }
+  }
+  const double k = 1.0 / ((2.0 * r + 1) * (2.0 * r + 1));
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      double s = 0;
+      for (int d = -r; d <= r; ++d)
+        s += t[static_cast<std::size_t>(std::clamp(y + d, 0, H - 1)) * W + x];
+      out[static_cast<std::size_t>(y) * W + x] = s * k;
+    }
+  }
+  return out;
+}
+
 void check(const Image* img, const Image& like, const char* what) {
   if (!img || img->channels() != 3 || !img->same_size(like)) {
     throw std::invalid_argument(std::string("estimate_error: ") + what +
@@ -97,27 +131,42 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
       av = in.alpha->plane(c);
       sv = in.sure->plane(c);
     }
+    // Per element: the error terms (below), then the relMSE weights from the stand-in.
+    std::vector<double> EV(n), ED(n), F(n), Z(n), Epos(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      // Non-finite values count as 0, as the pipeline's stages see them.
+      const double v = std::isfinite(vv[i]) ? std::max(0.0, static_cast<double>(vv[i])) : 0.0;
+      double ev = v, ed = 0.0, f = v;
+      if (denoised) {
+        const double a = av[i], d = static_cast<double>(yv[i]) - xv[i];
+        // SURE of z = x + a (y - x) with alpha held fixed: e = (1-a) v + a SURE - a (1-a) d^2
+        // (it keeps the x-y covariance that (1-a)^2 v + a^2 SURE drops) = e_v + e_d with
+        // e_v = (1-a) v + a (SURE - d^2) proportional to the variance scale, e_d = a^2 d^2.
+        // The frame mean is taken without per-pixel clamping (that would bias it up, 4-5x on
+        // interior) and floored at mean (1-a)^2 v: MSE(z) >= that when div >= 0, and SURE
+        // biased low (noisy features correlated with x's noise) can take the mean below it.
+        ev = (1.0 - a) * v + a * (sv[i] - d * d);
+        ed = a * a * d * d;
+        f = (1.0 - a) * (1.0 - a) * v;
+      }
+      EV[i] = ev;
+      ED[i] = ed;
+      F[i] = f;
+      Z[i] = std::isfinite(zv[i]) ? zv[i] : 0.0;
+      Epos[i] = std::max({ev + ed, f, 0.0});
+    }
+    const std::vector<double> zbar = box_mean(Z, W, H, kStandInRadius);
+    const std::vector<double> ebar = box_mean(Epos, W, H, kStandInRadius);
+    const double window = (2.0 * kStandInRadius + 1) * (2.0 * kStandInRadius + 1);
+    const double draws_per_window = std::max(1.0, window / kPixelsPerDraw);
     for (int py = 0; py < H; ++py) {
       double prev[2] = {0, 0};
       for (int px = 0; px < W; ++px) {
         const std::size_t i = static_cast<std::size_t>(py) * W + px;
-        // Non-finite values count as 0, as the pipeline's stages see them.
         const double v = std::isfinite(vv[i]) ? std::max(0.0, static_cast<double>(vv[i])) : 0.0;
-        const double z = zv[i];
-        const double w = std::isfinite(z) ? 1.0 / (z * z + kRelEps) : 0.0;
-        double ev = v, ed = 0.0, f = v;
-        if (denoised) {
-          const double a = av[i], d = static_cast<double>(yv[i]) - xv[i];
-          // SURE of z = x + a (y - x) with alpha held fixed: e = (1-a) v + a SURE - a (1-a) d^2
-          // (it keeps the x-y covariance that (1-a)^2 v + a^2 SURE drops) = e_v + e_d with
-          // e_v = (1-a) v + a (SURE - d^2) proportional to the variance scale, e_d = a^2 d^2.
-          // The frame mean is taken without per-pixel clamping (that would bias it up, 4-5x on
-          // interior) and floored at mean (1-a)^2 v: MSE(z) >= that when div >= 0, and SURE
-          // biased low (noisy features correlated with x's noise) can take the mean below it.
-          ev = (1.0 - a) * v + a * (sv[i] - d * d);
-          ed = a * a * d * d;
-          f = (1.0 - a) * (1.0 - a) * v;
-        }
+        const double ev = EV[i], ed = ED[i], f = F[i];
+        const double ref2 = std::max(0.0, zbar[i] * zbar[i] - ebar[i] / draws_per_window);
+        const double w = std::isfinite(zv[i]) ? 1.0 / (ref2 + kRelEps) : 0.0;
         m.v += ev;
         m.d += ed;
         m.f += f;

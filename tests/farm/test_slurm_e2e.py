@@ -146,15 +146,19 @@ class SlurmEndToEnd(unittest.TestCase):
         self.assertEqual(f["passes"], len(rendered))
         self.assertEqual(len({p["content_hash"] for p in f["pass_list"]}), len(rendered))
 
-        # A task that starts now (requeued, or no monitor running) skips its render.
+        # A task that starts now (requeued, or no monitor running) skips its render: one whose
+        # pass was never rendered (skipped or cancelled above).
+        idx = max(set(skipped) | set(cancelled))
+        pass_file = os.path.join(watch, "pass_%04d" % idx, "beauty_0001.exr")
+        self.assertFalse(os.path.exists(pass_file))
         r = subprocess.run([sys.executable, os.path.join(REPO, "deploy", "slurm", "proden_slurm.py"),
                             "task", "--url", d.url, "--job", info["job"], "--watch", watch,
                             "--frames", "1", "--passes", str(PASSES), "--spp", str(SPP),
-                            "--blend", blend, "--blender", BLENDER, "--index", str(PASSES - 1)],
+                            "--blend", blend, "--blender", BLENDER, "--index", str(idx)],
                            capture_output=True, text=True, timeout=120)
         self.assertEqual(r.returncode, 0, r.stderr)
         self.assertIn("state=skipped", r.stdout)
-        self.assertFalse(os.path.exists(os.path.join(watch, "pass_%04d" % (PASSES - 1))))
+        self.assertFalse(os.path.exists(pass_file))
 
         # The error object: in the frame, in the converged event, in the EXR header.
         e = f["estimated_error"]
