@@ -236,3 +236,24 @@ TEST_CASE("estimate_error: a negative mean SURE bounds nothing from above", "[er
   CHECK_FALSE(meets_equivalent_spp(e, 1.0));
   CHECK(e.mse > 0.0);  // the floor
 }
+
+// Issue 13: relMSE divides by ref^2 + 0.01, and the frame has no reference. With the noisy result
+// as the stand-in, a dark frame's noisy pixels (z^2 >> ref^2) got small weights and relMSE came
+// out ~0.5x the truth (toward "done"); the local mean less its noise is unbiased up to blur.
+TEST_CASE("estimate_error: relMSE of a dark noisy frame is not biased low by its own noise",
+          "[error_estimate]") {
+  const int W = 96, H = 96;
+  const float ref = 0.02f, sigma = 0.1f;  // noise 5x the signal: a dark corner at low spp
+  Image x(W, H, 3), v(W, H, 3, sigma * sigma);
+  std::mt19937_64 rng(13);
+  std::normal_distribution<float> n(0.0f, sigma);
+  for (auto& p : x.data()) p = ref + n(rng);
+  double truth = 0;
+  for (const float p : x.data()) truth += (p - ref) * (p - ref) / (ref * ref + 0.01);
+  truth /= static_cast<double>(x.data().size());
+  ErrorContext ctx{.spp = 8, .passes = 8, .noise_scope = NoiseScope::pixel};
+  const EstimatedError e = estimate_error({&x, &v, &x}, ctx);
+  INFO("est " << e.relmse << " true " << truth);
+  CHECK(e.relmse / truth > 0.8);
+  CHECK(e.relmse / truth < 1.25);
+}
