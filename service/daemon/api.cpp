@@ -302,8 +302,7 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
       }
       version = std::stoull(v);
     }
-    const auto img =
-        engine_.image(id, frame, PreviewCache::Request::from_query(query), version);
+    const auto img = engine_.image(id, frame, PreviewCache::Request::from_query(query), version);
     Response r{http::status::ok, 11};
     r.set(http::field::cache_control, "no-cache");
     r.set(http::field::etag, img.etag);

@@ -588,9 +588,9 @@ Engine::ImageFile Engine::image(const std::string& id, long frame,
     version = fr.published_version;
     exr = output_base(job->spec, frame).string() + ".exr";
     if (wanted && *wanted != version) {
-      const bool kept = *wanted < version &&
-                        std::find(fr.rec.versions.begin(), fr.rec.versions.end(), *wanted) !=
-                            fr.rec.versions.end();
+      const bool kept =
+          *wanted < version && std::find(fr.rec.versions.begin(), fr.rec.versions.end(), *wanted) !=
+                                   fr.rec.versions.end();
       if (!kept) {
         std::string have;
         for (auto v = fr.rec.versions.rbegin(); v != fr.rec.versions.rend(); ++v) {
