@@ -207,23 +207,32 @@ def main():
     p.add_argument("--blender", default=os.environ.get("BLENDER", "blender"))
     p.add_argument("--proden", default=os.path.join(REPO, "build", "proden"))
     p.add_argument("--out", default=os.path.join(HERE, "results"))
+    p.add_argument("--append", action="store_true",
+                   help="keep the other scenes already in <out>/farm_savings.json")
     a = p.parse_args()
     harness.BINARY = os.path.abspath(a.proden)
+    os.makedirs(a.out, exist_ok=True)
+    out_json = os.path.join(a.out, "farm_savings.json")
     results = []
+    if a.append and os.path.exists(out_json):  # keep the other scenes' measurements
+        with open(out_json) as f:
+            results = [r for r in json.load(f) if r["scene"] not in a.scenes]
+
+    def save():  # after every scene: a later scene's failure keeps the earlier ones
+        with open(out_json, "w") as f:
+            json.dump(results, f, indent=1)
+
     with harness.TempRoot(prefix="proden-farm-bench-") as root, SlurmCluster(cpus=2) as cl:
         d = harness.Daemon(root).start()
         try:
             for s in a.scenes:
                 print("scene %s ..." % s, file=sys.stderr, flush=True)
                 r = scene_run(a, cl, d, root, s)
-                print(json.dumps({k: v for k, v in r.items() if k != "oracle_curve_relmse"}),
-                      file=sys.stderr, flush=True)
+                print(json.dumps(r), file=sys.stderr, flush=True)
                 results.append(r)
+                save()
         finally:
             d.stop()
-    os.makedirs(a.out, exist_ok=True)
-    with open(os.path.join(a.out, "farm_savings.json"), "w") as f:
-        json.dump(results, f, indent=1)
     cmd = "sudo bench/farm_savings.py " + " ".join(sys.argv[1:])
     with open(os.path.join(a.out, "farm_savings.md"), "w") as f:
         f.write(markdown(results, cmd.strip()))

@@ -259,6 +259,11 @@ def run(build_scene, clamp_indirect=0.0):
     scene = reset_scene()
     build_scene(scene, args)
     configure_render(scene, args, clamp_indirect=clamp_indirect)
+    save_or_render(scene, args)
+
+
+def save_or_render(scene, args):
+    """--save-blend: save the configured scene (farm tools render it); else render --out."""
     if args.save_blend:
         path = os.path.abspath(args.save_blend)
         os.makedirs(os.path.dirname(path), exist_ok=True)
