@@ -61,7 +61,11 @@ def latency(args, root):
 
 
 def sse_clients(args, root):
-    d = Daemon(os.path.join(root, "sse"))
+    # All clients come from one loopback address: lift the per-client and total stream limits
+    # (docs/api.md, "Security and limits") above the number measured.
+    n = args.clients
+    d = Daemon(os.path.join(root, "sse"), config={"limits": {
+        "max_sse_per_client": n, "max_sse_streams": n, "max_connections": max(4096, 2 * n)}})
     os.makedirs(d.root, exist_ok=True)
     d.start()
     clients = []

@@ -3,7 +3,8 @@
 // reference (the mean of reference passes, with their own variance subtracted from the MSE).
 //
 // Layouts: DIR/spp<L>/pass_*.exr with DIR/reference/pass_*.exr (bench/render_eval_set.sh), or
-// DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level.
+// DIR/pass_*.exr with DIR/reference.exr (samples/renders/<scene>) as one level. `--passes N` merges
+// each level's passes into N chunks of the same total spp (few-pass frames, docs/pipeline.md).
 //
 // Also per level: the pipeline's own error estimates (no reference): mean Var[x] for the render,
 // mean SURE for the denoised image, and for the result PipelineResult::estimated_error (what
@@ -51,11 +52,46 @@ std::vector<std::string> exr_files(const fs::path& dir, const std::string& prefi
   return out;
 }
 
-FrameAccumulator accumulate(const std::vector<std::string>& files, bool features) {
+// Adds `src` (spp n) into the running chunk `dst` (spp m): spp-weighted means, and the renderer
+// variance of the merged mean, (m^2 v_dst + n^2 v_src) / (m + n)^2.
+void merge_into(Pass& dst, const Pass& src) {
+  if (dst.colour.empty()) {
+    dst = src;
+    return;
+  }
+  const double m = dst.spp, n = src.spp, w = m + n;
+  auto mean = [&](Image& a, const Image& b) {
+    for (std::size_t i = 0; i < a.data().size(); ++i)
+      a.data()[i] = static_cast<float>((m * a.data()[i] + n * b.data()[i]) / w);
+  };
+  mean(dst.colour, src.colour);
+  if (!dst.albedo.empty()) mean(dst.albedo, src.albedo);
+  if (!dst.normal.empty()) mean(dst.normal, src.normal);
+  if (!dst.depth.empty()) mean(dst.depth, src.depth);
+  for (std::size_t i = 0; i < dst.variance.data().size(); ++i) {
+    dst.variance.data()[i] = static_cast<float>(
+        (m * m * dst.variance.data()[i] + n * n * src.variance.data()[i]) / (w * w));
+  }
+  dst.spp = w;
+}
+
+// The level's passes as given, or (chunks > 0) merged into `chunks` contiguous groups of nearly
+// equal size, the way a farm renders a frame as a few big chunks: same samples, fewer passes.
+FrameAccumulator accumulate(const std::vector<std::string>& files, bool features, int chunks = 0) {
   io::ReadOptions o;
   o.features = features;
   FrameAccumulator f;
-  for (const auto& p : files) f.add(io::read_pass(p, o), p);
+  if (chunks <= 0 || chunks >= static_cast<int>(files.size())) {
+    for (const auto& p : files) f.add(io::read_pass(p, o), p);
+    return f;
+  }
+  const std::size_t n = files.size(), k = static_cast<std::size_t>(chunks);
+  for (std::size_t g = 0; g < k; ++g) {
+    Pass chunk;
+    for (std::size_t i = g * n / k; i < (g + 1) * n / k; ++i)
+      merge_into(chunk, io::read_pass(files[i], o));
+    f.add(chunk, "chunk" + std::to_string(g));
+  }
   return f;
 }
 
@@ -109,7 +145,7 @@ int main(int argc, char** argv) {
   std::string dir;
   std::string levels_csv;
   bool as_json = false, no_features = false;
-  int threads = 0;
+  int threads = 0, chunks = 0;
   PipelineOptions po;
   std::string rule = "stein", divergence = "auto";
   app.add_option("--scene", dir, "Scene directory")->required();
@@ -117,7 +153,12 @@ int main(int argc, char** argv) {
   app.add_flag("--json", as_json, "JSON lines output");
   app.add_flag("--no-features", no_features, "Colour only");
   app.add_option("--threads", threads, "Threads (0 = all)");
+  app.add_option("--passes", chunks,
+                 "Merge each level's passes into this many chunks (same spp; 0 = as rendered)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--mixer-radius", po.closed_form.radius);
+  app.add_option("--mixer-wide-radius", po.closed_form.wide_radius, "0: one window");
+  app.add_option("--garrote", po.closed_form.garrote);
   app.add_option("--pool", po.variance_pool_radius);
   app.add_option("--t0", po.ttest.t0);
   bool no_dof = false;
@@ -211,7 +252,7 @@ int main(int argc, char** argv) {
   }
   for (const auto& [level, files] : levels) {
     const auto t0 = std::chrono::steady_clock::now();
-    const FrameAccumulator f = accumulate(files, !no_features);
+    const FrameAccumulator f = accumulate(files, !no_features, chunks);
     const FrameEstimate est = f.estimate({.halves = false, .features = !no_features});
     const auto t1 = std::chrono::steady_clock::now();
     const PipelineResult r = pipeline.execute(est);

@@ -3,8 +3,8 @@
 
 Generated parts: accuracy.md + accuracy_summary.json (bench/accuracy.py), perf.json + perf.txt
 (proden_bench_pipeline), cycles_1080p.json (Blender, same run), micro.txt (Google Benchmark).
-Hand-written parts, included verbatim: accumulation.md, daemon.md, dashboard.md, farm.md (measurements made
-by other tools; edit them there, not in RESULTS.md).
+Hand-written parts, included verbatim: accumulation.md, daemon.md, dashboard.md, hostile.md, few_passes.md,
+farm.md (measurements made by other tools; edit them there, not in RESULTS.md).
 """
 import json
 import math
@@ -201,9 +201,11 @@ def main():
          "output). The *Accumulation*, *Daemon*, *Dashboard* and *Farm integration* sections were "
          "measured by other tools and are kept as hand-written parts, "
          "`bench/results/accumulation.md`, `bench/results/daemon.md`, "
-         "`bench/results/dashboard.md` and `bench/results/farm.md`, which the generator "
+         "`bench/results/dashboard.md`, `bench/results/hostile.md` and `bench/results/farm.md`, "
+         "which the generator "
          "includes verbatim: edit those files. "
-         "So is `bench/results/closing_extra.md`, the interpretation at the end.",
+         "So are `bench/results/few_passes.md` (written by `bench/few_passes.py`) and "
+         "`bench/results/closing_extra.md`, the interpretation at the end.",
          "",
          "Machine: the project's 2-core AVX-512 VM (Debian 12, g++ 12 -O3, no -march), shared "
          "with other jobs while measuring: absolute seconds are noisy; compare ratios within one "
@@ -211,6 +213,9 @@ def main():
          "`bench/render_eval_set.sh` and live outside the repo.", ""]
     if acc:
         L.append(read("accuracy.md"))
+    few = read("few_passes.md")  # bench/few_passes.py (hand-run: it needs the eval sets twice)
+    if few:
+        L.append(few)
     if perf:
         perf_section(perf, cyc, L)
     network_section(L)
@@ -226,7 +231,7 @@ def main():
         L.append("\n".join(l for l in micro.splitlines() if l.startswith(("BM_", "---", "Bench",
                                                                           "Run on"))))
         L.append("```\n")
-    for part in ("accumulation.md", "daemon.md", "dashboard.md", "farm.md"):
+    for part in ("accumulation.md", "daemon.md", "dashboard.md", "hostile.md", "farm.md"):
         t = read(part)
         if t:
             L.append(t)

@@ -8,7 +8,7 @@ packages=(
   cmake g++ make pkg-config
   libopenimageio-dev openimageio-tools libopencv-core-dev   # OIIO's CMake target names opencv4 headers
   libopenexr-dev libimath-dev
-  libboost-dev libboost-system-dev
+  libboost-dev libboost-system-dev                          # Beast (daemon), Math (t-test quantiles)
   nlohmann-json3-dev libspdlog-dev libfmt-dev catch2 libcli11-dev libtbb-dev
   python3 curl                                              # service tests, make run
   libbenchmark-dev libopenblas-dev python3-matplotlib       # make bench (micro, sgemm, plots)

@@ -209,10 +209,12 @@ class Client:
         return data
 
     def upload_pass(self, job_id, frame, pass_name, path):
+        """PUT a pass: {"status": "queued"} (202), or "ingested" (200) when the same bytes were
+        uploaded and accumulated before (idempotent); other bytes for the pass raise 409."""
         with open(path, "rb") as f:
             body = f.read()
         return self.call("PUT", "/api/v1/jobs/%s/frames/%d/passes/%s"
-                         % (_q(job_id), int(frame), _q(pass_name)), body, ok=(202,),
+                         % (_q(job_id), int(frame), _q(pass_name)), body, ok=(200, 202),
                          headers={"Content-Type": "application/octet-stream"})
 
     # ---- events ----

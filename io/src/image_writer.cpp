@@ -1,10 +1,15 @@
 #include "proden/io/image_writer.hpp"
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
+#include <cerrno>
+#include <cstring>
 #include <filesystem>
+#include <random>
 #include <stdexcept>
 
 namespace proden::io {
@@ -12,14 +17,68 @@ namespace {
 
 namespace fs = std::filesystem;
 
-void fsync_path(const std::string& path, int flags) {
-  const int fd = ::open(path.c_str(), flags);
-  if (fd < 0) return;  // best effort (e.g. directories on some file systems)
-  ::fsync(fd);
-  ::close(fd);
+// OIIO writes through this into a descriptor proden created (never opening a path itself).
+class FdWriter final : public OIIO::Filesystem::IOProxy {
+ public:
+  explicit FdWriter(int fd) : IOProxy("", IOProxy::Write), fd_(fd) {}
+  const char* proxytype() const override { return "proden-fd"; }
+  bool seek(int64_t offset) override {
+    if (offset < 0) return false;
+    m_pos = offset;
+    return true;
+  }
+  size_t write(const void* buf, size_t size) override {
+    const size_t n = pwrite(buf, size, m_pos);
+    m_pos += static_cast<int64_t>(n);
+    return n;
+  }
+  size_t pwrite(const void* buf, size_t size, int64_t offset) override {
+    std::size_t done = 0;
+    const auto* p = static_cast<const char*>(buf);
+    while (done < size) {
+      const ssize_t n = ::pwrite(fd_, p + done, size - done,
+                                 static_cast<off_t>(offset) + static_cast<off_t>(done));
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) {
+        failed_ = errno != 0 ? errno : EIO;
+        break;
+      }
+      done += static_cast<std::size_t>(n);
+    }
+    return done;
+  }
+  size_t size() const override {
+    struct stat st {};
+    return ::fstat(fd_, &st) == 0 ? static_cast<size_t>(st.st_size) : 0;
+  }
+  int failed() const { return failed_; }
+
+ private:
+  int fd_;
+  int failed_ = 0;
+};
+
+std::string temp_name(const std::string& name) {
+  static thread_local std::mt19937_64 rng(std::random_device{}());
+  const fs::path target(name);
+  // Hidden, unique, and with the target's extension (OIIO picks the format by it).
+  return "." + target.stem().string() + ".tmp" + std::to_string(::getpid()) + "." +
+         std::to_string(rng() & 0xffffffffu) + target.extension().string();
 }
 
+thread_local OutputDirectory* t_bound = nullptr;
+
 }  // namespace
+
+OutputDirectory::OutputDirectory(std::string dir, int dir_fd)
+    : dir_(fs::path(std::move(dir)).lexically_normal().string()), fd_(dir_fd), outer_(t_bound) {
+  while (dir_.size() > 1 && dir_.back() == '/') dir_.pop_back();
+  t_bound = this;
+}
+
+OutputDirectory::~OutputDirectory() {
+  t_bound = outer_;
+}
 
 void add_layer(std::vector<NamedChannel>& out, const std::string& prefix, const Image& image,
                std::string_view suffixes) {
@@ -31,29 +90,36 @@ void add_layer(std::vector<NamedChannel>& out, const std::string& prefix, const 
   }
 }
 
-void write_image(const std::string& path, int width, int height,
-                 std::span<const NamedChannel> channels, const WriteOptions& options) {
-  const std::size_t n = static_cast<std::size_t>(width) * height;
-  if (channels.empty() || n == 0) throw std::runtime_error(path + ": nothing to write");
+void write_image_at(int dir_fd, const std::string& name, int width, int height,
+                    std::span<const NamedChannel> channels, const WriteOptions& options,
+                    const std::string& display_name) {
+  const std::string& display = display_name.empty() ? name : display_name;
+  if (name.empty() || name.find('/') != std::string::npos || name == "." || name == "..") {
+    throw std::runtime_error(display + ": not a file name");
+  }
+  const std::size_t n = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
+  if (channels.empty() || n == 0) throw std::runtime_error(display + ": nothing to write");
   for (const auto& ch : channels) {
     if (ch.data.size() != n) {
-      throw std::runtime_error(path + ": channel " + ch.name + " has " +
+      throw std::runtime_error(display + ": channel " + ch.name + " has " +
                                std::to_string(ch.data.size()) + " values, expected " +
                                std::to_string(n));
     }
   }
-  const fs::path target(path);
-  const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
-  // Same directory (same file system) so rename is atomic; keep the extension for OIIO.
-  std::string tmp_name = ".";
-  tmp_name += target.stem().string();
-  tmp_name += ".tmp";
-  tmp_name += std::to_string(::getpid());
-  tmp_name += target.extension().string();
-  const fs::path tmp = dir / tmp_name;
-
-  auto out = OIIO::ImageOutput::create(tmp.string());
-  if (!out) throw std::runtime_error(path + ": cannot create writer: " + OIIO::geterror());
+  const std::string tmp = temp_name(name);
+  const int fd =
+      ::openat(dir_fd, tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_NOFOLLOW | O_CLOEXEC, 0644);
+  if (fd < 0) {
+    throw std::runtime_error(display + ": cannot create a temp file: " + std::strerror(errno));
+  }
+  auto discard = [&](const std::string& why) {
+    ::close(fd);
+    ::unlinkat(dir_fd, tmp.c_str(), 0);
+    throw std::runtime_error(display + ": " + why);
+  };
+  FdWriter proxy(fd);
+  auto out = OIIO::ImageOutput::create(tmp, &proxy);
+  if (!out) discard("cannot create writer: " + OIIO::geterror());
   const int nch = static_cast<int>(channels.size());
   OIIO::ImageSpec spec(width, height, nch,
                        options.half ? OIIO::TypeDesc::HALF : OIIO::TypeDesc::FLOAT);
@@ -68,24 +134,49 @@ void write_image(const std::string& path, int width, int height,
     const auto d = channels[c].data;
     for (std::size_t p = 0; p < n; ++p) interleaved[p * channels.size() + c] = d[p];
   }
-  bool ok =
-      out->open(tmp.string(), spec) && out->write_image(OIIO::TypeDesc::FLOAT, interleaved.data());
+  bool ok = out->set_ioproxy(&proxy) && out->open(tmp, spec) &&
+            out->write_image(OIIO::TypeDesc::FLOAT, interleaved.data());
   std::string err = ok ? "" : out->geterror();
-  ok = out->close() && ok;
+  ok = out->close() && ok && proxy.failed() == 0;
   if (!ok) {
-    std::error_code ec;
-    fs::remove(tmp, ec);
-    throw std::runtime_error(path + ": write failed: " + (err.empty() ? out->geterror() : err));
+    if (err.empty()) err = out->geterror();
+    if (err.empty() && proxy.failed()) err = std::strerror(proxy.failed());
+    discard("write failed: " + err);
   }
-  fsync_path(tmp.string(), O_RDONLY);
-  std::error_code ec;
-  fs::rename(tmp, target, ec);
-  if (ec) {
-    const std::string why = ec.message();
-    fs::remove(tmp, ec);
-    throw std::runtime_error(path + ": cannot move into place: " + why);
+  out.reset();
+  if (::fsync(fd) != 0) discard(std::string("fsync failed: ") + std::strerror(errno));
+  ::close(fd);
+  if (::renameat(dir_fd, tmp.c_str(), dir_fd, name.c_str()) != 0) {
+    const std::string why = std::strerror(errno);
+    ::unlinkat(dir_fd, tmp.c_str(), 0);
+    throw std::runtime_error(display + ": cannot move into place: " + why);
   }
-  fsync_path(dir.string(), O_RDONLY | O_DIRECTORY);
+  ::fsync(dir_fd);  // the new directory entry is durable before we report the file written
+}
+
+void write_image(const std::string& path, int width, int height,
+                 std::span<const NamedChannel> channels, const WriteOptions& options) {
+  const fs::path target(path);
+  const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
+  std::string key = dir.lexically_normal().string();
+  while (key.size() > 1 && key.back() == '/') key.pop_back();
+  for (const OutputDirectory* b = t_bound; b; b = b->outer_) {
+    if (b->dir_ == key) {
+      write_image_at(b->fd_, target.filename().string(), width, height, channels, options, path);
+      return;
+    }
+  }
+  const int dir_fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dir_fd < 0) {
+    throw std::runtime_error(path + ": cannot open its directory: " + std::strerror(errno));
+  }
+  try {
+    write_image_at(dir_fd, target.filename().string(), width, height, channels, options, path);
+  } catch (...) {
+    ::close(dir_fd);
+    throw;
+  }
+  ::close(dir_fd);
 }
 
 void add_aovs(std::vector<NamedChannel>& out, const std::vector<AovChannel>& aovs) {

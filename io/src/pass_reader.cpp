@@ -1,23 +1,33 @@
 #include "proden/io/pass_reader.hpp"
 
+#include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
+#include <algorithm>
+#include <cerrno>
 #include <charconv>
+#include <cmath>
 #include <cstdio>
-#include <filesystem>
+#include <cstring>
 #include <map>
+#include <memory>
+#include <set>
 #include <sstream>
 #include <system_error>
 
 #include "proden/error.hpp"
+#include "proden/io/text.hpp"
 
 namespace proden::io {
 namespace {
 
-namespace fs = std::filesystem;
-
-[[noreturn]] void fail(InputErrorKind kind, const std::string& path, const std::string& reason) {
-  throw InputError(kind, path, reason);
+// Every InputError leaving the reader carries printable text: the reason may quote channel names,
+// header values or decoder messages, all of which are the file's bytes.
+[[noreturn]] void fail(InputErrorKind kind, const std::string& name, const std::string& reason) {
+  throw InputError(kind, printable(name), printable(reason));
 }
 
 struct ChannelRef {
@@ -35,40 +45,136 @@ struct Header {
   std::vector<OIIO::TypeDesc> channel_types;
 };
 
-std::string oiio_error(const OIIO::ImageInput* in) {
+std::string oiio_error(OIIO::ImageInput* in) {
   std::string e = in ? in->geterror() : OIIO::geterror();
   if (e.empty()) e = OIIO::geterror();
   while (!e.empty() && (e.back() == '\n' || e.back() == ' ')) e.pop_back();
   return e.empty() ? "unknown read error" : e;
 }
 
-std::unique_ptr<OIIO::ImageInput> open_checked(const std::string& path) {
-  std::error_code ec;
-  const auto status = fs::status(path, ec);
-  if (ec || !fs::exists(status)) fail(InputErrorKind::unreadable, path, "no such file");
-  if (!fs::is_regular_file(status)) fail(InputErrorKind::unreadable, path, "not a regular file");
-  const auto size = fs::file_size(path, ec);
-  if (ec) fail(InputErrorKind::unreadable, path, "cannot stat: " + ec.message());
-  if (size == 0) {
-    fail(InputErrorKind::unreadable, path,
-         "empty file (0 bytes): a render placeholder or a file still being written");
+// OIIO reads through this, so it never opens a file by name: the bytes come from the source the
+// caller opened (a buffer, or a descriptor opened inside the allowed roots).
+class SourceProxy final : public OIIO::Filesystem::IOProxy {
+ public:
+  explicit SourceProxy(const ByteSource& source) : IOProxy("", IOProxy::Read), src_(source) {}
+  const char* proxytype() const override { return "proden"; }
+  bool seek(int64_t offset) override {
+    if (offset < 0) return false;
+    m_pos = offset;
+    return true;
   }
-  auto in = OIIO::ImageInput::open(path);
-  if (!in) fail(InputErrorKind::unreadable, path, "not a readable image: " + oiio_error(nullptr));
-  return in;
+  size_t read(void* buf, size_t size) override {
+    const size_t n = pread(buf, size, m_pos);
+    m_pos += static_cast<int64_t>(n);
+    return n;
+  }
+  size_t pread(void* buf, size_t size, int64_t offset) override {
+    if (offset < 0) return 0;
+    return src_.read(static_cast<std::uint64_t>(offset), buf, size);
+  }
+  size_t size() const override { return static_cast<size_t>(src_.size()); }
+
+ private:
+  const ByteSource& src_;
+};
+
+// A descriptor this file opened (path-based reads of the CLI).
+class OwnedFd {
+ public:
+  explicit OwnedFd(int fd) : fd_(fd) {}
+  ~OwnedFd() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+  OwnedFd(const OwnedFd&) = delete;
+  OwnedFd& operator=(const OwnedFd&) = delete;
+  int get() const { return fd_; }
+
+ private:
+  int fd_;
+};
+
+// Opens `path` for reading as a pass: a regular file (never blocks on a FIFO or a device).
+std::pair<std::unique_ptr<OwnedFd>, std::uint64_t> open_regular(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOCTTY | O_NONBLOCK);
+  if (fd < 0) {
+    const int e = errno;
+    fail(InputErrorKind::unreadable, path,
+         e == ENOENT ? std::string("no such file")
+                     : "cannot open: " + std::string(std::strerror(e)));
+  }
+  auto owned = std::make_unique<OwnedFd>(fd);
+  struct stat st {};
+  if (::fstat(fd, &st) != 0) fail(InputErrorKind::unreadable, path, "cannot stat");
+  if (!S_ISREG(st.st_mode)) fail(InputErrorKind::unreadable, path, "not a regular file");
+  return {std::move(owned), static_cast<std::uint64_t>(st.st_size)};
 }
 
-Header read_header(OIIO::ImageInput& in, const std::string& path) {
+// The header inspected and bounded, then opened by OIIO through the proxy.
+struct Opened {
+  HeaderSummary summary;
+  std::unique_ptr<SourceProxy> proxy;  // outlives `in`
+  std::unique_ptr<OIIO::ImageInput> in;
+};
+
+Opened open_source(const ByteSource& src, const std::string& name, const ReadOptions& o) {
+  Opened op;
+  op.summary = inspect_header(src, name, o.limits);
+  const FileFormat format = op.summary.format;
+  if (!accepts(o.renderer, format)) {
+    fail(InputErrorKind::unsupported_format, name,
+         "a " + std::string(format == FileFormat::exr ? "OpenEXR" : "Radiance HDR") +
+             " file; the " + std::string(to_string(o.renderer)) + " profile reads OpenEXR only");
+  }
+  const HeaderPart& first = op.summary.parts.front();
+  if (!first.windows_equal) {
+    fail(InputErrorKind::unsupported_format, name,
+         "data window differs from display window (crop/border renders are not supported)");
+  }
+  if (o.frame_size &&
+      (first.width != o.frame_size->first || first.height != o.frame_size->second)) {
+    fail(InputErrorKind::size_mismatch, name,
+         std::to_string(first.width) + "x" + std::to_string(first.height) +
+             " differs from the frame's " + std::to_string(o.frame_size->first) + "x" +
+             std::to_string(o.frame_size->second));
+  }
+  op.proxy = std::make_unique<SourceProxy>(src);
+  // The decoder is the one the magic bytes named, never one guessed from a file name.
+  op.in = OIIO::ImageInput::create(to_string(format), false, nullptr, op.proxy.get());
+  if (!op.in) fail(InputErrorKind::unreadable, name, "no decoder: " + oiio_error(nullptr));
+  OIIO::ImageSpec config;
+  OIIO::Filesystem::IOProxy* ptr = op.proxy.get();
+  config.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &ptr);
+  OIIO::ImageSpec spec;
+  // The name given to OIIO is not a path: with the proxy it opens nothing itself.
+  if (!op.in->open("<proden pass>", spec, config)) {
+    fail(InputErrorKind::unreadable, name, "not a readable image: " + oiio_error(op.in.get()));
+  }
+  return op;
+}
+
+Header read_header(OIIO::ImageInput& in, const HeaderSummary& summary, const std::string& path,
+                   const ReadLimits& limits) {
   Header h;
   h.format = in.format_name();
   for (int s = 0; in.seek_subimage(s, 0); ++s) {
     const OIIO::ImageSpec& spec = in.spec();
+    // The decoder must agree with the bounded header walk.
+    if (s >= static_cast<int>(summary.parts.size()) ||
+        static_cast<std::uint64_t>(std::max(spec.width, 0)) *
+                static_cast<std::uint64_t>(std::max(spec.height, 0)) >
+            limits.max_pixels ||
+        spec.nchannels > limits.max_channels) {
+      fail(InputErrorKind::unreadable, path, "the decoder sees a different header");
+    }
     if (s == 0) {
       h.width = spec.width;
       h.height = spec.height;
+      if (spec.width != summary.parts[0].width || spec.height != summary.parts[0].height) {
+        fail(InputErrorKind::unreadable, path, "the decoder sees a different image size");
+      }
       if (spec.x != spec.full_x || spec.y != spec.full_y || spec.width != spec.full_width ||
           spec.height != spec.full_height) {
-        fail(InputErrorKind::unreadable, path,
+        fail(InputErrorKind::unsupported_format, path,
              "data window differs from display window (crop/border renders are not supported)");
       }
       for (const auto& a : spec.extra_attribs) {
@@ -124,6 +230,13 @@ std::optional<double> parse_duration(const std::string& s) {
   return total;
 }
 
+// Samples per pixel of one pass: a finite positive count. 2^32 is far above any render and keeps
+// sums of many passes exact in double.
+constexpr double kMaxSpp = 4294967296.0;
+bool valid_spp(double spp) {
+  return std::isfinite(spp) && spp > 0.0 && spp <= kMaxSpp;
+}
+
 struct Resolved {
   ChannelMap map;
   std::vector<std::string> colour, albedo, normal, depth, variance;
@@ -164,13 +277,13 @@ Resolved resolve(const Header& h, const std::string& path, const ReadOptions& op
   }
   if (options.variance) r.variance = pick(h, map->variance);
 
-  info.path = path;
+  info.path = printable(path);
   info.format = h.format;
   info.renderer = map->renderer;
-  info.layer = map->layer;
-  info.layers = map->layers;
+  info.layer = printable(map->layer);
+  for (const auto& l : map->layers) info.layers.push_back(printable(l));
   info.aovs.clear();
-  for (const auto& a : r.aovs) info.aovs.push_back(a.name);
+  for (const auto& a : r.aovs) info.aovs.push_back(printable(a.name));
   {
     const std::vector<std::pair<std::string, std::string>> attrs(h.attributes.begin(),
                                                                  h.attributes.end());
@@ -179,7 +292,8 @@ Resolved resolve(const Header& h, const std::string& path, const ReadOptions& op
   info.width = h.width;
   info.height = h.height;
   info.subimages = h.subimages;
-  info.channels = h.channels;
+  info.channels.clear();
+  for (const auto& c : h.channels) info.channels.push_back(printable(c));
   {
     const auto it = std::find(h.channels.begin(), h.channels.end(), r.colour[0]);
     info.pixel_type = h.channel_types[static_cast<std::size_t>(it - h.channels.begin())].c_str();
@@ -191,16 +305,17 @@ Resolved resolve(const Header& h, const std::string& path, const ReadOptions& op
   if (const auto it = h.attributes.find(map->spp_attribute);
       !map->spp_attribute.empty() && it != h.attributes.end()) {
     const double spp = parse_number(it->second);
-    if (!(spp > 0.0)) {
+    if (!valid_spp(spp)) {
       fail(InputErrorKind::invalid_value, path,
-           "header attribute " + map->spp_attribute + " = '" + it->second +
-               "' is not a positive sample count");
+           "header attribute " + map->spp_attribute + " = '" + it->second.substr(0, 64) +
+               "' is not a sample count in (0, " + std::to_string(kMaxSpp) + "]");
     }
     info.spp = spp;
     info.spp_source = SppSource::header;
   } else if (options.spp) {
-    if (!(*options.spp > 0.0)) {
-      fail(InputErrorKind::invalid_value, path, "--spp must be positive");
+    if (!valid_spp(*options.spp)) {
+      fail(InputErrorKind::invalid_value, path,
+           "--spp must be a sample count in (0, " + std::to_string(kMaxSpp) + "]");
     }
     info.spp = *options.spp;
     info.spp_source = SppSource::option;
@@ -234,100 +349,205 @@ std::string PassInfo::to_string() const {
   return o.str();
 }
 
-PassInfo probe_pass(const std::string& path, const ReadOptions& options) {
-  auto in = open_checked(path);
-  const Header h = read_header(*in, path);
-  PassInfo info;
-  resolve(h, path, options, info);
-  return info;
-}
-
 namespace {
 
-// Reads the named channels (all present in `h`) as one planar image; each subimage is read once.
+// Reads the named channels (all present in `h`) as planar images, one per requested set. Channels
+// are read as runs of neighbouring channel indices of a subimage (OIIO converts half to float),
+// one run at a time, so the peak is the output planes plus the largest run.
 class ChannelLoader {
  public:
-  ChannelLoader(OIIO::ImageInput& in, const Header& h, const std::string& path)
-      : in_(in), h_(h), path_(path) {}
-
-  Image load(const std::vector<std::string>& names) {
-    if (names.empty()) return Image();
-    Image img(h_.width, h_.height, static_cast<int>(names.size()));
-    for (std::size_t c = 0; c < names.size(); ++c) {
-      const ChannelRef ref = h_.where.at(names[c]);
-      const auto& [buf, nch] = part(ref.subimage);
-      auto plane = img.plane(static_cast<int>(c));
-      for (std::size_t p = 0; p < plane.size(); ++p) {
-        plane[p] = buf[p * nch + static_cast<std::size_t>(ref.index)];
+  ChannelLoader(OIIO::ImageInput& in, const Header& h, const std::string& path,
+                std::vector<std::vector<std::string>> sets)
+      : in_(in), h_(h), path_(path), sets_(std::move(sets)) {
+    std::map<int, std::set<int>> used;
+    for (const auto& set : sets_) {
+      for (const auto& n : set) {
+        const ChannelRef ref = h_.where.at(n);
+        used[ref.subimage].insert(ref.index);
       }
     }
-    return img;
+    for (const auto& [s, idx] : used) {
+      for (int i : idx) {
+        // Merge channels at most 2 apart: one decode instead of two for a few wasted planes.
+        if (!runs_.empty() && runs_.back().subimage == s && i - runs_.back().end <= 2) {
+          runs_.back().end = i + 1;
+        } else {
+          runs_.push_back({s, i, i + 1});
+        }
+      }
+    }
+  }
+
+  // Estimated peak bytes of load(): `resident` (the file, when in memory) + planes + largest run.
+  std::uint64_t peak_bytes(std::uint64_t resident) const {
+    const std::uint64_t px = pixels();
+    std::uint64_t planes = 0, run = 0;
+    for (const auto& set : sets_) planes += px * set.size() * sizeof(float);
+    for (const auto& r : runs_) {
+      run = std::max(run, px * static_cast<std::uint64_t>(r.end - r.begin) * sizeof(float));
+    }
+    return resident + planes + run;
+  }
+
+  std::vector<Image> load() {
+    std::vector<Image> out;
+    for (const auto& set : sets_) {
+      out.push_back(set.empty() ? Image()
+                                : Image(h_.width, h_.height, static_cast<int>(set.size())));
+    }
+    const std::size_t px = static_cast<std::size_t>(pixels());
+    std::vector<float> buf;
+    for (const auto& r : runs_) {
+      const auto n = static_cast<std::size_t>(r.end - r.begin);
+      buf.assign(px * n, 0.0f);
+      if (!in_.read_image(r.subimage, 0, r.begin, r.end, OIIO::TypeDesc::FLOAT, buf.data())) {
+        fail(InputErrorKind::unreadable, path_,
+             "truncated or corrupt pixel data: " + oiio_error(&in_));
+      }
+      for (std::size_t k = 0; k < sets_.size(); ++k) {
+        for (std::size_t c = 0; c < sets_[k].size(); ++c) {
+          const ChannelRef ref = h_.where.at(sets_[k][c]);
+          if (ref.subimage != r.subimage || ref.index < r.begin || ref.index >= r.end) continue;
+          const auto off = static_cast<std::size_t>(ref.index - r.begin);
+          auto plane = out[k].plane(static_cast<int>(c));
+          for (std::size_t p = 0; p < px; ++p) plane[p] = buf[p * n + off];
+        }
+      }
+    }
+    return out;
   }
 
  private:
-  // All channels of a subimage as float (OIIO converts half), read on first use.
-  const std::pair<std::vector<float>, std::size_t>& part(int s) {
-    if (auto it = parts_.find(s); it != parts_.end()) return it->second;
-    if (!in_.seek_subimage(s, 0)) fail(InputErrorKind::unreadable, path_, oiio_error(&in_));
-    const int nch = in_.spec().nchannels;
-    std::vector<float> buf(static_cast<std::size_t>(h_.width) *
-                           static_cast<std::size_t>(h_.height) * static_cast<std::size_t>(nch));
-    if (!in_.read_image(s, 0, 0, nch, OIIO::TypeDesc::FLOAT, buf.data())) {
-      fail(InputErrorKind::unreadable, path_,
-           "truncated or corrupt pixel data: " + oiio_error(&in_));
-    }
-    return parts_[s] = {std::move(buf), static_cast<std::size_t>(nch)};
+  struct Run {
+    int subimage, begin, end;  // channels [begin, end)
+  };
+  std::uint64_t pixels() const {
+    return static_cast<std::uint64_t>(h_.width) * static_cast<std::uint64_t>(h_.height);
   }
-
   OIIO::ImageInput& in_;
   const Header& h_;
   const std::string& path_;
-  std::map<int, std::pair<std::vector<float>, std::size_t>> parts_;
+  std::vector<std::vector<std::string>> sets_;
+  std::vector<Run> runs_;
 };
+
+void check_budget(std::uint64_t need, const std::string& path, const ReadLimits& limits) {
+  if (need > limits.max_memory_bytes) {
+    fail(InputErrorKind::too_large, path,
+         "reading it needs about " + std::to_string(need >> 20) + " MiB, above the per-read " +
+             "budget of " + std::to_string(limits.max_memory_bytes >> 20) + " MiB");
+  }
+}
+
+// Opens, walks and resolves `src`; the loader is planned and its budget checked.
+struct Prepared {
+  Opened op;
+  Header h;
+  PassInfo info;
+  Resolved r;
+};
+
+// The channel sets a read loads: colour, albedo, normal, depth, variance, then (with `aovs`) one
+// set per renderer AOV.
+std::vector<std::vector<std::string>> channel_sets(const Resolved& r, bool aovs) {
+  std::vector<std::vector<std::string>> sets = {r.colour, r.albedo, r.normal, r.depth, r.variance};
+  if (aovs) {
+    for (const auto& a : r.aovs) sets.push_back({a.channel});
+  }
+  return sets;
+}
+
+Prepared prepare(const ByteSource& src, const std::string& name, const ReadOptions& options,
+                 bool aovs = false) {
+  Prepared p{open_source(src, name, options), {}, {}, {}};
+  p.h = read_header(*p.op.in, p.op.summary, name, options.limits);
+  p.r = resolve(p.h, name, options, p.info);
+  ChannelLoader plan(*p.op.in, p.h, name, channel_sets(p.r, aovs));
+  // Counted as if the file were in memory: callers reading through a descriptor use less.
+  p.info.read_bytes = plan.peak_bytes(src.size());
+  check_budget(p.info.read_bytes, name, options.limits);
+  return p;
+}
 
 }  // namespace
 
-Pass read_pass(const std::string& path, const ReadOptions& options, PassInfo* info_out,
-               std::vector<AovChannel>* aovs) {
-  auto in = open_checked(path);
-  const Header h = read_header(*in, path);
-  PassInfo info;
-  const Resolved r = resolve(h, path, options, info);
-  ChannelLoader loader(*in, h, path);
-  Pass pass;
-  pass.colour = loader.load(r.colour);
-  pass.albedo = loader.load(r.albedo);
-  pass.normal = loader.load(r.normal);
-  pass.depth = loader.load(r.depth);
-  pass.variance = loader.load(r.variance);
-  pass.spp = info.spp;
-  if (aovs) {
-    aovs->clear();
-    for (const auto& a : r.aovs) aovs->push_back({a.name, loader.load({a.channel})});
+std::size_t FdSource::read(std::uint64_t offset, void* buf, std::size_t n) const {
+  std::size_t done = 0;
+  auto* out = static_cast<char*>(buf);
+  while (done < n && offset + done < size_) {
+    const std::size_t want =
+        static_cast<std::size_t>(std::min<std::uint64_t>(n - done, size_ - offset - done));
+    const ssize_t got = ::pread(fd_, out + done, want, static_cast<off_t>(offset + done));
+    if (got < 0 && errno == EINTR) continue;
+    if (got <= 0) break;
+    done += static_cast<std::size_t>(got);
   }
-  in->close();
-  if (info_out) *info_out = std::move(info);
+  return done;
+}
+
+PassInfo probe_pass(const ByteSource& source, const std::string& name, const ReadOptions& options) {
+  return prepare(source, name, options).info;
+}
+
+PassInfo probe_pass(const std::string& path, const ReadOptions& options) {
+  const auto [fd, size] = open_regular(path);
+  return probe_pass(FdSource(fd->get(), size), path, options);
+}
+
+Pass read_pass(const ByteSource& source, const std::string& name, const ReadOptions& options,
+               PassInfo* info_out, std::vector<AovChannel>* aovs) {
+  Prepared p = prepare(source, name, options, aovs != nullptr);
+  auto images = ChannelLoader(*p.op.in, p.h, name, channel_sets(p.r, aovs != nullptr)).load();
+  Pass pass;
+  pass.colour = std::move(images[0]);
+  pass.albedo = std::move(images[1]);
+  pass.normal = std::move(images[2]);
+  pass.depth = std::move(images[3]);
+  pass.variance = std::move(images[4]);
+  pass.spp = p.info.spp;
+  if (aovs) {  // the renderer AOVs, one channel each, after the five sets above
+    aovs->clear();
+    for (std::size_t k = 0; k < p.r.aovs.size(); ++k) {
+      aovs->push_back({p.r.aovs[k].name, std::move(images[5 + k])});
+    }
+  }
+  p.op.in->close();
+  if (info_out) *info_out = std::move(p.info);
   return pass;
 }
 
-Image read_layer(const std::string& path, const std::string& layer, const ReadOptions& options) {
-  if (layer.empty() || layer == "result") return read_rgb(path, options);
-  auto in = open_checked(path);
-  const Header h = read_header(*in, path);
-  const std::vector<std::string> names = {layer + ".R", layer + ".G", layer + ".B"};
-  for (const auto& n : names) {
-    if (!h.where.count(n)) {
-      fail(InputErrorKind::missing_channels, path, "no layer '" + layer + "' (channel " + n + ")");
-    }
-  }
-  return ChannelLoader(*in, h, path).load(names);
+Pass read_pass(const std::string& path, const ReadOptions& options, PassInfo* info_out,
+               std::vector<AovChannel>* aovs) {
+  const auto [fd, size] = open_regular(path);
+  return read_pass(FdSource(fd->get(), size), path, options, info_out, aovs);
 }
 
-Image read_rgb(const std::string& path, const ReadOptions& options) {
+Image read_layer(const ByteSource& source, const std::string& name, const std::string& layer,
+                 const ReadOptions& options) {
   ReadOptions o = options;
   o.features = false;
   o.variance = false;
-  return read_pass(path, o).colour;
+  if (layer.empty() || layer == "result") return read_pass(source, name, o).colour;
+  Opened op = open_source(source, name, o);
+  const Header h = read_header(*op.in, op.summary, name, o.limits);
+  const std::vector<std::string> names = {layer + ".R", layer + ".G", layer + ".B"};
+  for (const auto& n : names) {
+    if (!h.where.count(n)) {
+      fail(InputErrorKind::missing_channels, name, "no layer '" + layer + "' (channel " + n + ")");
+    }
+  }
+  ChannelLoader loader(*op.in, h, name, {names});
+  check_budget(loader.peak_bytes(source.size()), name, o.limits);
+  return std::move(loader.load()[0]);
+}
+
+Image read_layer(const std::string& path, const std::string& layer, const ReadOptions& options) {
+  const auto [fd, size] = open_regular(path);
+  return read_layer(FdSource(fd->get(), size), path, layer, options);
+}
+
+Image read_rgb(const std::string& path, const ReadOptions& options) {
+  return read_layer(path, "", options);
 }
 
 }  // namespace proden::io

@@ -107,6 +107,18 @@ std::string_view to_string(Renderer r) {
   return "?";
 }
 
+std::span<const FileFormat> accepted_formats(Renderer r) {
+  static constexpr FileFormat exr_only[] = {FileFormat::exr};
+  static constexpr FileFormat exr_or_hdr[] = {FileFormat::exr, FileFormat::radiance};
+  if (r == Renderer::cycles) return exr_only;
+  return exr_or_hdr;
+}
+
+bool accepts(Renderer r, FileFormat f) {
+  const auto list = accepted_formats(r);
+  return std::find(list.begin(), list.end(), f) != list.end();
+}
+
 std::optional<Renderer> parse_renderer(std::string_view s) {
   for (Renderer r : {Renderer::automatic, Renderer::cycles, Renderer::povray, Renderer::generic}) {
     if (s == to_string(r)) return r;

@@ -16,6 +16,12 @@ std::string_view to_string(InputErrorKind kind) {
       return "duplicate";
     case InputErrorKind::invalid_value:
       return "invalid_value";
+    case InputErrorKind::unsupported_format:
+      return "unsupported_format";
+    case InputErrorKind::too_large:
+      return "too_large";
+    case InputErrorKind::path_escape:
+      return "path_escape";
   }
   return "unknown";
 }

@@ -45,36 +45,6 @@ void sanitize_into(const Image& src, float lo, float hi, Image& dst) {
   for (float& v : dst.data()) v = std::isfinite(v) ? std::clamp(v, lo, hi) : 0.0f;
 }
 
-// Mean of each pixel's (2r+1)^2 neighbourhood clipped to the image, per channel (separable);
-// `tmp` is scratch of img's size.
-void box_mean(const Image& img, int r, Image& tmp, Image& out) {
-  if (r <= 0) {
-    out = img;
-    return;
-  }
-  const int W = img.width(), H = img.height();
-  if (!tmp.same_size(img) || tmp.channels() != img.channels()) tmp = Image(W, H, img.channels());
-  out = Image(W, H, img.channels());
-  for (int c = 0; c < img.channels(); ++c) {
-    for (int y = 0; y < H; ++y) {
-      for (int x = 0; x < W; ++x) {
-        double s = 0;
-        const int a = std::max(x - r, 0), b = std::min(x + r + 1, W);
-        for (int q = a; q < b; ++q) s += img.at(q, y, c);
-        tmp.at(x, y, c) = static_cast<float>(s / (b - a));
-      }
-    }
-    for (int y = 0; y < H; ++y) {
-      const int a = std::max(y - r, 0), b = std::min(y + r + 1, H);
-      for (int x = 0; x < W; ++x) {
-        double s = 0;
-        for (int q = a; q < b; ++q) s += tmp.at(x, q, c);
-        out.at(x, y, c) = static_cast<float>(s / (b - a));
-      }
-    }
-  }
-}
-
 bool all_zero(const Image& img) {
   const auto d = img.data();
   return std::all_of(d.begin(), d.end(), [](float v) { return v == 0.0f; });
@@ -98,17 +68,29 @@ void run_denoiser(const Denoiser& denoiser, const DenoiseInputs& din, const Rect
 }
 
 // Stage 2 over `region`: the divergence (from the Jacobian diagonal, or Monte-Carlo probes that
-// re-run the denoiser) and SURE.
-void run_sure(const Denoiser& denoiser, const DenoiseInputs& din, const Rect& region, bool analytic,
-              const MonteCarloProbes& probes, Denoised& d) {
+// re-run the denoiser) and SURE, both from `variance`, each pixel's own unbiased Var[x] (the
+// denoiser's weights may read another: docs/pipeline.md, "Few passes").
+void run_sure(const Denoiser& denoiser, const DenoiseInputs& din, const View& variance,
+              const Rect& region, bool analytic, const MonteCarloProbes& probes, Denoised& d) {
   d.div.reset(region, 3);
   if (analytic) {
-    divergence_from_derivative(din.variance, d.dydx, region, d.div);
+    divergence_from_derivative(variance, d.dydx, region, d.div);
   } else {
     divergence_monte_carlo(denoiser, din, region, d.y, probes, d.div);
+    if (variance.data != din.variance.data) {
+      // The probes draw b ~ N(0, din.variance), so they estimate dy/dx * din.variance.
+      for (int c = 0; c < 3; ++c) {
+        for (int py = region.y0; py < region.y1; ++py) {
+          for (int px = region.x0; px < region.x1; ++px) {
+            const float vw = din.variance.at(px, py, c);
+            d.div.at(px, py, c) *= vw > 0.0f ? variance.at(px, py, c) / vw : 0.0f;
+          }
+        }
+      }
+    }
   }
   d.sure.reset(region, 3);
-  sure(din.colour, din.variance, d.y, d.div, region, d.sure);
+  sure(din.colour, variance, d.y, d.div, region, d.sure);
 }
 
 [[noreturn]] void fail(PipelineOption option, const std::string& message) {
@@ -240,12 +222,13 @@ struct Pipeline::Scratch {
     }
   };
   Image x, var, box_tmp;  // sanitised x and Var[x], the box filter's pass
+  Image var_weights;      // Var[x] as the denoiser's weights read it
   Denoised full;          // a whole-frame denoiser's run
   tbb::enumerable_thread_specific<Tile> tiles;
 
   std::size_t bytes() const {
-    std::size_t floats =
-        x.data().size() + var.data().size() + box_tmp.data().size() + full.floats();
+    std::size_t floats = x.data().size() + var.data().size() + box_tmp.data().size() +
+                         var_weights.data().size() + full.floats();
     for (const Tile& t : tiles) floats += t.floats();
     return floats * sizeof(float);
   }
@@ -305,10 +288,26 @@ void Pipeline::commit() {
   if (!(o.gaussian_sigma > 0.0f) || o.gaussian_sigma > kMaxGaussianSigma) {
     fail(PipelineOption::gaussian_sigma, "must be in (0, 21]");
   }
-  if (o.t_test && o.ttest.radius < 0)
-    fail(PipelineOption::t_test, "the window radius must be >= 0");
+  if (o.t_test && (o.ttest.radius < 0 || o.ttest.radius > kTTestMaxRadius)) {
+    fail(PipelineOption::t_test,
+         "the window radius must be in [0, " + std::to_string(kTTestMaxRadius) + "]");
+  }
+  if (o.t_test && o.variance_pool_radius > kTTestMaxRadius) {
+    fail(PipelineOption::variance_pool_radius,
+         "must be <= " + std::to_string(kTTestMaxRadius) + " with the t-test");
+  }
   if (!o.weights.empty() && o.mixer != MixerKind::network) {
     fail(PipelineOption::weights, "weights are for the network mixer (mixer network)");
+  }
+
+  // The t-test's rejection curve is tabulated once per (t0, slope) per process: now, not in the
+  // first frame.
+  if (o.t_test && o.ttest.dof_correction) {
+    try {
+      RejectionCurve::shared(o.ttest.t0, o.ttest.slope);
+    } catch (const std::invalid_argument& e) {
+      fail(PipelineOption::t_test, e.what());
+    }
   }
 
   // The stages, built into locals so a failure leaves nothing half-built.
@@ -419,7 +418,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
   const Image& var = s.var;
   // The mixer and the t-test judge x's error from a spatially pooled variance: with few passes a
   // pixel's own estimate is heavy-tailed (most pixels of a caustic never saw its fireflies).
-  box_mean(var, o.variance_pool_radius, s.box_tmp, res.mix_variance);
+  pool_variance(var, o.variance_pool_radius, s.box_tmp, res.mix_variance);
 
   // Simulate only what the frame calls for: a noise-free frame has nothing to denoise.
   if (all_zero(var)) {
@@ -437,7 +436,24 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
   res.alpha = Image(W, H, 3);
   res.sure = Image(W, H, 3);
 
-  const DenoiseInputs din = denoise_inputs(frame, x, var, reads_.features);
+  // With few passes a pixel's own Var[x] has K - 1 degrees of freedom and often comes out far
+  // too low, and the filter then keeps its noise: when the variance is estimated (between passes,
+  // or the one-pass spatial fallback) the denoiser's weights read max(own, pooled). An outlier (a
+  // firefly) keeps its own, so its neighbours still take a share of its energy instead of it
+  // being averaged away. An exact variance (the renderer's, or pass counts unknown) is read as
+  // is. SURE and the divergence read the pixel's own, unbiased estimate (docs/pipeline.md,
+  // "Few passes").
+  const bool estimated_variance =
+      frame.variance_source != VarianceSource::renderer && frame.passes.same_size(frame.mean);
+  const Image* var_weights = &var;
+  if (estimated_variance) {
+    s.var_weights = var;
+    for (std::size_t i = 0; i < s.var_weights.data().size(); ++i) {
+      s.var_weights.data()[i] = std::max(s.var_weights.data()[i], res.mix_variance.data()[i]);
+    }
+    var_weights = &s.var_weights;
+  }
+  const DenoiseInputs din = denoise_inputs(frame, x, *var_weights, reads_.features);
   res.inputs.albedo = reads_.features && din.albedo.valid();
   res.inputs.normal = reads_.features && din.normal.valid();
   res.inputs.depth = reads_.features && din.depth.valid();
@@ -450,7 +466,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
     const auto w0 = Clock::now();
     run_denoiser(denoiser, din, image, analytic_, s.full);
     const auto w1 = Clock::now();
-    run_sure(denoiser, din, image, analytic_, o.probes, s.full);
+    run_sure(denoiser, din, view_of(var), image, analytic_, o.probes, s.full);
     res.timings.denoise += seconds(w0, w1);
     res.timings.sure += seconds(w1, Clock::now());
   }
@@ -460,7 +476,10 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
   const int t_pad = o.t_test ? o.ttest.radius : 0;
   const int mix_pad = mixer.radius() + t_pad;
   const View pooled = view_of(res.mix_variance);
-  const View passes = frame.passes.same_size(frame.mean) ? view_of(frame.passes) : View{};
+  // What the mixer and the t-test need to know of the variance's degrees of freedom.
+  const VarianceOrigin origin{frame.passes.same_size(frame.mean) ? view_of(frame.passes) : View{},
+                              frame.variance_source == VarianceSource::renderer,
+                              o.variance_pool_radius, view_of(var)};
 
   struct Times {
     double denoise = 0, sure = 0, mixer = 0, ttest = 0, compose = 0;
@@ -483,13 +502,13 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
     if (!whole) {
       run_denoiser(denoiser, din, r_den, analytic_, b.den);
       t1 = thread_cpu();
-      run_sure(denoiser, din, r_den, analytic_, o.probes, b.den);
+      run_sure(denoiser, din, view_of(var), r_den, analytic_, o.probes, b.den);
     }
     const Denoised& d = whole ? s.full : b.den;
     const View y = d.y.view(), div = d.div.view(), sure_v = d.sure.view();
     const double t2 = thread_cpu();
 
-    const MixInputs mi{W, H, din.colour, y, pooled, sure_v, div};
+    const MixInputs mi{W, H, din.colour, y, pooled, sure_v, div, origin};
     b.alpha.reset(r_mix, 3);
     mixer.mix(mi, r_mix, b.alpha);
     const double t3 = thread_cpu();
@@ -506,7 +525,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
         }
       }
       t_rescale(din.colour, pooled, b.z.view(), b.alpha.view(), W, H, tile, o.ttest, b.alpha_final,
-                passes);
+                origin);
     } else {
       for (int c = 0; c < 3; ++c) {
         for (int py = tile.y0; py < tile.y1; ++py) {

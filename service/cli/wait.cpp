@@ -265,6 +265,7 @@ int run_wait(const WaitOptions& in) {
   bool reached_once = false, failing = false;
   std::chrono::milliseconds backoff(200);
   for (;;) {
+    bool following = false;  // the events stream was being read (its read ends at the deadline)
     try {
       try {
         last = c.get(frame_path, left());
@@ -285,6 +286,7 @@ int run_wait(const WaitOptions& in) {
       }
       if (expired()) break;
       bool deleted = false;
+      following = true;
       c.follow(last_id, left(), [&](const std::string& type, const json& d) {
         if (!d.is_object() || d.value("job", "") != o.job) return false;
         if (type == "job" && d.value("state", "") == "deleted") {
@@ -302,6 +304,8 @@ int run_wait(const WaitOptions& in) {
       failing = true;
     } catch (const std::exception& e) {  // unreachable, reset, malformed: retry until the end
       spdlog::debug("{}: {}", o.url, e.what());
+      // The events read cut by the wait's own deadline is a timeout, not a failing daemon.
+      if (following && expired()) break;
       failing = true;
     }
     if (expired()) break;

@@ -1,10 +1,20 @@
 #include "daemon/api.hpp"
 
+#include <fcntl.h>
 #include <spdlog/spdlog.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <charconv>
+#include <cstring>
+#include <utility>
 
 #include "daemon/colour_map.hpp"
 #include "daemon/files.hpp"
+#include "daemon/pass_pattern.hpp"
 #include "daemon/web_assets.hpp"
+#include "proden/io/text.hpp"
 
 namespace proden::daemon {
 
@@ -13,21 +23,36 @@ using protocol::ApiError;
 
 namespace {
 
-std::string url_decode(std::string_view s) {
+int hex_value(char c) {
+  if (c >= '0' && c <= '9') return c - '0';
+  if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+  if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+  return -1;
+}
+
+std::string url_decode(std::string_view s, bool plus_is_space) {
   std::string out;
   out.reserve(s.size());
   for (std::size_t i = 0; i < s.size(); ++i) {
-    if (s[i] == '%' && i + 2 < s.size() && std::isxdigit(static_cast<unsigned char>(s[i + 1])) &&
-        std::isxdigit(static_cast<unsigned char>(s[i + 2]))) {
-      out += static_cast<char>(std::stoi(std::string(s.substr(i + 1, 2)), nullptr, 16));
+    if (s[i] == '%' && i + 2 < s.size() && hex_value(s[i + 1]) >= 0 && hex_value(s[i + 2]) >= 0) {
+      out += static_cast<char>(hex_value(s[i + 1]) * 16 + hex_value(s[i + 2]));
       i += 2;
-    } else if (s[i] == '+') {
+    } else if (plus_is_space && s[i] == '+') {
       out += ' ';
     } else {
       out += s[i];
     }
   }
   return out;
+}
+
+// UTF-8 without control characters (a name, an id, a parameter value).
+bool clean_text(std::string_view s) {
+  if (!io::is_valid_utf8(s)) return false;
+  return std::none_of(s.begin(), s.end(), [](char c) {
+    const auto u = static_cast<unsigned char>(c);
+    return u < 0x20 || u == 0x7F;
+  });
 }
 
 bool mutating(http::verb v) {
@@ -55,9 +80,21 @@ bool is_upload(http::verb v, const std::vector<std::string>& p) {
          p[4] == "frames" && p[6] == "passes";
 }
 
+bool is_health(const std::vector<std::string>& p) {
+  return p.size() == 1 && (p[0] == "livez" || p[0] == "readyz" || p[0] == "metrics");
+}
+
 [[noreturn]] void not_allowed(const char* allow) {
   throw ApiError(405, "method_not_allowed", std::string("allowed: ") + allow);
 }
+
+// Removes a spooled upload when the request ends without handing it on.
+struct SpoolGuard {
+  const std::filesystem::path& path;
+  ~SpoolGuard() {
+    if (!path.empty()) ::unlink(path.c_str());
+  }
+};
 
 // GET /api/v1/colormaps: how each layer is drawn as a PNG, and the maps' colours for legends.
 json colour_maps_json() {
@@ -80,19 +117,31 @@ json colour_maps_json() {
 
 }  // namespace
 
-void split_target(std::string_view target, std::vector<std::string>& path,
-                  std::map<std::string, std::string>& query) {
+std::optional<Target> parse_target(std::string_view target, std::string& why) {
+  if (target.empty() || target.front() != '/') {
+    why = "request target: must start with '/'";
+    return std::nullopt;
+  }
+  Target out;
   const auto q = target.find('?');
-  std::string_view p = target.substr(0, q);
+  const std::string_view p = target.substr(0, q);
   std::size_t start = 0;
   while (start < p.size()) {
     auto end = p.find('/', start);
     if (end == std::string_view::npos) end = p.size();
-    if (end > start) path.push_back(url_decode(p.substr(start, end - start)));
+    if (end > start) {
+      std::string seg = url_decode(p.substr(start, end - start), false);
+      if (!clean_text(seg)) {
+        why = "request target: path segment " + std::to_string(out.path.size() + 1) +
+              " is not UTF-8 text";
+        return std::nullopt;
+      }
+      out.path.push_back(std::move(seg));
+    }
     start = end + 1;
   }
-  if (q == std::string_view::npos) return;
-  std::string_view qs = target.substr(q + 1);
+  if (q == std::string_view::npos) return out;
+  const std::string_view qs = target.substr(q + 1);
   start = 0;
   while (start < qs.size()) {
     auto end = qs.find('&', start);
@@ -100,17 +149,45 @@ void split_target(std::string_view target, std::vector<std::string>& path,
     const auto kv = qs.substr(start, end - start);
     const auto eq = kv.find('=');
     if (!kv.empty()) {
-      query[url_decode(kv.substr(0, eq))] =
-          eq == std::string_view::npos ? "" : url_decode(kv.substr(eq + 1));
+      std::string key = url_decode(kv.substr(0, eq), true);
+      std::string value = eq == std::string_view::npos ? "" : url_decode(kv.substr(eq + 1), true);
+      if (!clean_text(key)) {
+        why = "request target: a query parameter name is not UTF-8 text";
+        return std::nullopt;
+      }
+      if (!clean_text(value)) {
+        why = "request target: query parameter '" + key + "' is not UTF-8 text";
+        return std::nullopt;
+      }
+      out.query[std::move(key)] = std::move(value);
     }
     start = end + 1;
   }
+  return out;
 }
 
-Api::Api(const Config& config, Engine& engine, EventHub& events, Metrics& metrics,
-         std::string token)
+std::optional<std::uint64_t> parse_event_id(std::string_view v) {
+  if (v.empty() || v.size() > 20) return std::nullopt;
+  std::uint64_t id = 0;
+  const auto [ptr, ec] = std::from_chars(v.data(), v.data() + v.size(), id);
+  if (ec != std::errc() || ptr != v.data() + v.size()) return std::nullopt;
+  return id;
+}
+
+std::optional<std::string_view> bearer_token(std::string_view auth) {
+  constexpr std::string_view prefix = "bearer ";
+  if (auth.size() <= prefix.size()) return std::nullopt;
+  for (std::size_t i = 0; i < prefix.size(); ++i) {
+    if (std::tolower(static_cast<unsigned char>(auth[i])) != prefix[i]) return std::nullopt;
+  }
+  return auth.substr(prefix.size());
+}
+
+Api::Api(const Config& config, Engine& engine, const Roots& roots, EventHub& events,
+         Metrics& metrics, std::string token)
     : config_(config),
       engine_(engine),
+      roots_(roots),
       events_(events),
       metrics_(metrics),
       token_(std::move(token)) {}
@@ -120,13 +197,16 @@ Response Api::json_response(int status, const json& body) const {
   r.set(http::field::server, "proden");
   r.set(http::field::content_type, "application/json");
   r.set(http::field::cache_control, "no-store");
-  r.body() = body.dump() + "\n";
+  // Strings in replies are UTF-8 by construction (checked on the way in, io::printable from
+  // files); `replace` keeps a missed byte from ever turning a reply into an exception.
+  r.body() = body.dump(-1, ' ', false, json::error_handler_t::replace) + "\n";
   return r;
 }
 
 Response Api::error(int status, const std::string& code, const std::string& message) {
   metrics_.inc("proden_errors_total", "http_" + std::to_string(status));
-  Response r = json_response(status, {{"error", {{"code", code}, {"message", message}}}});
+  Response r =
+      json_response(status, {{"error", {{"code", code}, {"message", io::printable(message)}}}});
   if (status == 401) r.set(http::field::www_authenticate, "Bearer realm=\"proden\"");
   return r;
 }
@@ -134,23 +214,26 @@ Response Api::error(int status, const std::string& code, const std::string& mess
 bool Api::authorized(const http::request_header<>& h) const {
   if (token_.empty()) return true;
   const auto auth = h[http::field::authorization];
-  const boost::beast::string_view prefix = "Bearer ";
-  if (auth.size() <= prefix.size() || !boost::beast::iequals(auth.substr(0, 7), prefix)) {
-    return false;
-  }
-  return constant_time_equal(std::string_view(auth.data(), auth.size()).substr(7), token_);
+  const auto token = bearer_token(std::string_view(auth.data(), auth.size()));
+  return token && constant_time_equal(*token, token_);
 }
 
 std::optional<Response> Api::before_body(const http::request_header<>& h, BodyPolicy& policy) {
-  std::vector<std::string> path;
-  std::map<std::string, std::string> query;
-  split_target(std::string_view(h.target().data(), h.target().size()), path, query);
-  if ((mutating(h.method()) || (!config_.open_reads && protected_read(path))) && !authorized(h)) {
+  std::string why;
+  const auto target = parse_target(std::string_view(h.target().data(), h.target().size()), why);
+  if (!target) return error(400, "bad_request", why);
+  const bool auth = authorized(h);
+  if ((mutating(h.method()) || (!config_.open_reads && protected_read(target->path))) && !auth) {
     return error(401, "unauthorized", "this request needs Authorization: Bearer <token>");
   }
-  if (is_upload(h.method(), path)) {
+  policy.inline_ok = is_health(target->path) && h.method() == http::verb::get;
+  policy.reserve_ok = is_health(target->path) || (!token_.empty() && auth);
+  if (is_upload(h.method(), target->path)) {
+    const auto& p = target->path;
     try {
-      engine_.check_upload(path[3], path[5], path[7]);
+      // Streamed to a new hidden file in the job's upload area (the file system of its final
+      // place; a restart removes leftovers), never into memory.
+      policy.spool = engine_.upload_spool(p[3], p[5], p[7]);
     } catch (const ApiError& e) {
       return error(e.status(), e.code(), e.what());
     }
@@ -160,25 +243,80 @@ std::optional<Response> Api::before_body(const http::request_header<>& h, BodyPo
   return std::nullopt;
 }
 
-Handler::Reply Api::handle(Request& req) {
-  std::vector<std::string> path;
-  std::map<std::string, std::string> query;
-  split_target(std::string_view(req.target().data(), req.target().size()), path, query);
+Handler::Reply Api::handle(Incoming& in) {
+  SpoolGuard spool{in.body_file};
+  Request& req = in.request;
+  std::string why;
+  const auto target = parse_target(std::string_view(req.target().data(), req.target().size()), why);
+  if (!target) return {error(400, "bad_request", why)};
   try {
-    return route(req, path, query);
+    return route(in, target->path, target->query);
   } catch (const ApiError& e) {
     return {error(e.status(), e.code(), e.what())};
   } catch (const json::exception& e) {
     return {error(400, "invalid_json", e.what())};
   } catch (const std::exception& e) {
-    spdlog::error("{} {}: {}", std::string(req.method_string()), std::string(req.target()),
-                  e.what());
+    spdlog::error("{} {}: {}", std::string(req.method_string()),
+                  io::printable(std::string(req.target())), io::printable(e.what()));
     return {error(500, "internal", e.what())};
   }
 }
 
-Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
+Handler::Reply Api::upload(Incoming& in, const std::vector<std::string>& p) {
+  const std::filesystem::path spooled = std::exchange(in.body_file, {});  // the engine owns it
+  const auto answer = engine_.upload_spooled(p[3], p[5], p[7], spooled);
+  return {json_response(answer.value("status", "") == "ingested" ? 200 : 202, answer)};
+}
+
+Handler::Reply Api::image(const Request& req, const std::string& id, long frame,
                           const std::map<std::string, std::string>& query) {
+  std::optional<std::uint64_t> version;  // ?version=K: an older version kept (docs/api.md)
+  if (query.count("version")) {
+    const std::string& v = query.at("version");
+    if (v.empty() || v.size() > 18 || !std::all_of(v.begin(), v.end(), ::isdigit) ||
+        std::stoull(v) == 0) {
+      throw ApiError(400, "invalid_parameter", "version must be a positive integer");
+    }
+    version = std::stoull(v);
+  }
+  const auto img = engine_.image(id, frame, PreviewCache::Request::from_query(query), version);
+  Reply r;
+  r.response = Response{http::status::ok, 11};
+  r.response.set(http::field::server, "proden");
+  r.response.set(http::field::cache_control, "no-cache");
+  r.response.set(http::field::etag, img.etag);
+  r.response.set("X-Proden-Version", std::to_string(img.version));
+  for (const auto& [k, v] : img.headers) r.response.set(k, v);
+  const auto inm = req[http::field::if_none_match];
+  if (!inm.empty() && std::string_view(inm.data(), inm.size()) == img.etag) {
+    r.response.result(http::status::not_modified);
+    return r;
+  }
+  // Published outputs live in an allowed root (opened beneath it); renditions in the state dir.
+  UniqueFd fd;
+  if (img.path.string().starts_with(config_.state_dir + "/")) {
+    fd = UniqueFd(open_regular_nofollow(img.path));
+  } else {
+    FileError err = FileError::none;
+    std::string why;
+    fd = roots_.open(img.path, O_RDONLY | O_NONBLOCK | O_NOCTTY, err, why);
+    if (err == FileError::escape) {
+      spdlog::warn("image {}: {}", img.path.string(), why);
+      throw ApiError(403, "path_forbidden", "the published image is no longer inside the roots");
+    }
+  }
+  struct stat st {};
+  if (!fd || ::fstat(fd.get(), &st) != 0 || !S_ISREG(st.st_mode)) {
+    throw ApiError(404, "not_found", "published image is not readable");
+  }
+  r.response.set(http::field::content_type, img.content_type);
+  r.file = std::move(fd);
+  return r;
+}
+
+Handler::Reply Api::route(Incoming& in, const std::vector<std::string>& p,
+                          const std::map<std::string, std::string>& query) {
+  Request& req = in.request;
   const auto m = req.method();
   const std::size_t n = p.size();
   if (n == 1 && p[0] == "livez") {
@@ -215,12 +353,12 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
     if (m != http::verb::get) not_allowed("GET");
     Reply r;
     r.sse = true;
-    std::string last(req["Last-Event-ID"]);
+    const auto header = req["Last-Event-ID"];
+    std::string last(header.data(), header.size());
     if (last.empty() && query.count("last_event_id")) last = query.at("last_event_id");
     if (!last.empty()) {
-      try {
-        r.last_event_id = std::stoull(last);
-      } catch (...) {
+      r.last_event_id = parse_event_id(last);
+      if (!r.last_event_id) {
         throw ApiError(400, "invalid_parameter", "Last-Event-ID must be an event id");
       }
     }
@@ -238,13 +376,24 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
       return {json_response(200, {{"jobs", list}})};
     }
     if (m != http::verb::post) not_allowed("GET, POST");
+    if (const auto bad = io::invalid_utf8_offset(req.body()); bad != std::string::npos) {
+      throw ApiError(400, "invalid_json",
+                     "body is not UTF-8 (byte " + std::to_string(bad) + " of the body)");
+    }
     json body;
     try {
       body = json::parse(req.body());
     } catch (const json::exception& e) {
       throw ApiError(400, "invalid_json", std::string("body is not JSON: ") + e.what());
     }
-    auto spec = engine_.create_job(protocol::parse_job_spec(body));
+    auto spec = protocol::parse_job_spec(body);
+    if (spec.watch) {
+      std::string why;
+      if (!PassPattern::parse(spec.watch->pattern, why)) {
+        throw ApiError(400, "invalid_field", "watch.pattern: " + why);
+      }
+    }
+    spec = engine_.create_job(std::move(spec));
     Response r = json_response(201, protocol::to_json(spec));
     r.set(http::field::location, "/api/v1/jobs/" + spec.id);
     return {r};
@@ -293,35 +442,12 @@ Handler::Reply Api::route(Request& req, const std::vector<std::string>& p,
   }
   if (n == 7 && p[6] == "image") {
     if (m != http::verb::get) not_allowed("GET");
-    std::optional<std::uint64_t> version;
-    if (query.count("version")) {
-      const std::string& v = query.at("version");
-      if (v.empty() || v.size() > 18 || !std::all_of(v.begin(), v.end(), ::isdigit) ||
-          std::stoull(v) == 0) {
-        throw ApiError(400, "invalid_parameter", "version must be a positive integer");
-      }
-      version = std::stoull(v);
-    }
-    const auto img = engine_.image(id, frame, PreviewCache::Request::from_query(query), version);
-    Response r{http::status::ok, 11};
-    r.set(http::field::cache_control, "no-cache");
-    r.set(http::field::etag, img.etag);
-    r.set("X-Proden-Version", std::to_string(img.version));
-    for (const auto& [k, v] : img.headers) r.set(k, v);
-    const auto inm = req[http::field::if_none_match];
-    if (!inm.empty() && std::string_view(inm.data(), inm.size()) == img.etag) {
-      r.result(http::status::not_modified);
-      return {r};
-    }
-    auto bytes = read_file(img.path);
-    if (!bytes) throw ApiError(404, "not_found", "published image is not readable");
-    r.set(http::field::content_type, img.content_type);
-    r.body().assign(reinterpret_cast<const char*>(bytes->data()), bytes->size());
-    return {r};
+    return image(req, id, frame, query);
   }
   if (n == 8 && p[6] == "passes") {
     if (m != http::verb::put) not_allowed("PUT");
-    return {json_response(202, engine_.upload(id, frame_s, p[7], req.body()))};
+    if (in.body_file.empty()) throw ApiError(400, "invalid_pass", "empty body");
+    return upload(in, p);
   }
   throw ApiError(404, "not_found", "no such endpoint");
 }

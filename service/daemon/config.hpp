@@ -9,6 +9,8 @@
 
 #include <nlohmann/json.hpp>
 
+#include "proden/io/image_header.hpp"
+
 namespace proden::daemon {
 
 struct Limits {
@@ -22,6 +24,21 @@ struct Limits {
   std::size_t sse_history = 1024;  // events kept for Last-Event-ID resumption
   int sse_keepalive_ms = 15000;
   std::size_t sse_queue_limit = 4096;  // pending events per client before it is dropped
+
+  // ---- hostile clients (issue 11; docs/api.md "Security and limits") ----
+  int max_sse_streams = 1024;     // event streams open at once (of max_connections)
+  int max_sse_per_client = 256;   // event streams per source address
+  int reserved_connections = 64;  // the last connections: health checks and tokens only
+                                  // (at most max_connections / 4)
+};
+
+// ---- hostile pass files (issue 11; docs/api.md "Security and limits"): bounds checked from a
+// pass's header before it is decoded (io::ReadLimits). ----
+struct InputLimits {
+  std::uint64_t max_pixels = 7680ull * 4320;  // width * height (8K UHD)
+  int max_channels = 1024;                    // all parts of one file
+  std::uint64_t max_file_bytes = 1ull << 30;  // a pass file (uploads: limits.max_upload_bytes)
+  std::uint64_t max_read_bytes = 1ull << 30;  // estimated peak memory of reading one pass
 };
 
 struct WatchConfig {
@@ -46,16 +63,27 @@ struct Config {
   int worker_threads = 2;       // frames processed concurrently
   int io_threads = 2;           // HTTP threads
   int max_resident_frames = 2;  // accumulators cached in memory (others reload from state)
+  int pipeline_threads = 0;     // threads of one frame's pipeline (TBB); 0 = one per core
   std::string log_level = "info";
   Limits limits;
   WatchConfig watch;
+  // ---- hostile input (issue 11) ----
+  InputLimits input;
+  int handler_threads = 2;  // HTTP handlers that validate uploads and encode images
 };
 
 // Applies the keys present in `j` over `c` (throws std::runtime_error on unknown keys or types).
 void apply_json(Config& c, const nlohmann::json& j);
 void load_config_file(Config& c, const std::string& path);
+// Checks every number against its bounds (throws std::runtime_error naming the key).
+void validate(const Config& c);
 nlohmann::json to_json(const Config& c);
 
 bool is_loopback_address(const std::string& host);
+
+// ---- hostile input (issue 11) ----
+// The pass reader's bounds from the config; `max_file_bytes`: input.max_file_bytes for watched
+// files, limits.max_upload_bytes for uploads.
+io::ReadLimits read_limits(const InputLimits& in, std::uint64_t max_file_bytes);
 
 }  // namespace proden::daemon

@@ -1,18 +1,22 @@
 #include "daemon/frame_run.hpp"
 
+#include <fcntl.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 
 #include "daemon/files.hpp"
 #include "daemon/frame_history.hpp"
+#include "daemon/pass_source.hpp"
 #include "daemon/processor.hpp"
 #include "daemon/versions.hpp"
 #include "proden/error.hpp"
 #include "proden/error_estimate.hpp"
 #include "proden/hash.hpp"
+#include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/protocol/estimate.hpp"
 #include "proden/protocol/json.hpp"
@@ -92,24 +96,37 @@ FrameRun::Outcome FrameRun::run(Input in) {
             [](const PendingPass& a, const PendingPass& b) { return pass_less(a.pass, b.pass); });
   const fs::path state_file = store_.state_path(job_id, frame_no);
 
-  // 1. The frame's state: resident, persisted, or new.
+  // 1. The frame's state: resident, persisted (or the last good one), or new.
   try {
     if (!acc || !aovs) {
       aovs = std::make_shared<AovAccumulator>();
       if (in.has_state) {
         const auto t0 = Clock::now();
-        acc = std::make_shared<FrameAccumulator>(store_.load_frame(job_id, frame_no, aovs.get()));
+        JobStore::LoadedState loaded = store_.load_frame(job_id, frame_no);
+        acc = std::make_shared<FrameAccumulator>(std::move(loaded.acc));
+        *aovs = std::move(loaded.aovs);
         metrics_.observe("proden_stage_duration_seconds", "load", seconds_since(t0));
+        if (!loaded.damage.empty()) {
+          // Versions only increase: the next one follows the newest known.
+          loaded.record.version = std::max(loaded.record.version, rec.version);
+          rec = std::move(loaded.record);
+          const std::string msg = loaded.damage + "; recovered the last good state (version " +
+                                  std::to_string(rec.version) + ", " + std::to_string(rec.passes) +
+                                  " passes); the passes after it are read again";
+          spdlog::error("job {} frame {}: {}", job_id, frame_no, msg);
+          metrics_.inc("proden_errors_total", "corrupt_state");
+          publish_error(events_, job_id, frame_no, "", state_file.string(), "corrupt_state", msg,
+                        false);
+          hooks_.recovered(rec);
+          in.republish = false;
+        }
       } else {
         acc = std::make_shared<FrameAccumulator>();
       }
     }
   } catch (const std::exception& e) {
     spdlog::error("job {} frame {}: cannot load state: {}", job_id, frame_no, e.what());
-    metrics_.inc("proden_errors_total", "corrupt_state");
-    publish_error(events_, job_id, frame_no, "", state_file.string(), "corrupt_state", e.what(),
-                  false);
-    return {Result::state_unreadable, nullptr, nullptr};
+    return {Result::state_unreadable, nullptr, nullptr, false, e.what()};
   }
 
   // 2. Read and accumulate each pass; a pass that fails is reported and left out.
@@ -117,28 +134,30 @@ FrameRun::Outcome FrameRun::run(Input in) {
   ro.renderer = io::parse_renderer(spec.renderer).value_or(io::Renderer::automatic);
   ro.spp = spec.spp;
   ro.view_layer = spec.view_layer;
-  std::vector<AovChannel> pass_aovs;
+  ro.limits = in.limits;
+  // A pass of another size than the frame's is refused from its header, before decoding.
+  if (in.has_state && rec.width > 0 && rec.height > 0)
+    ro.frame_size = std::pair{rec.width, rec.height};
   std::vector<protocol::PassIdentity> accepted;
+  std::vector<PendingPass> accepted_passes;
   std::uint64_t accepted_bytes = 0;
   for (const auto& p : batch) {
     try {
       auto t0 = Clock::now();
-      std::error_code ec;
-      const std::uint64_t size = fs::file_size(p.path, ec);
-      const std::int64_t mt = ec ? 0 : mtime_ns(p.path, ec);
-      if (ec) continue;  // gone: nothing to count (the watcher re-discovers a re-created file)
-      if (!p.upload && (size != p.size || mt != p.mtime_ns)) continue;  // changed: re-settles
-      auto bytes = read_file(p.path);
-      if (!bytes || bytes->size() != size) {
-        throw InputError(InputErrorKind::unreadable, p.path.string(), "cannot be read to the end");
+      // Opened once, at the moment of use: beneath its root, within the read limits.
+      store_.fault_point("read", p.path);
+      auto src = read_pending_pass(p, in.roots, ro, spec.output.aovs);
+      if (!src) continue;  // gone or changed: the watcher offers it again once it settles
+      const std::uint64_t size = src->size;
+      protocol::PassIdentity id{p.pass, p.path.string(), size, src->mtime_ns, src->content_hash};
+      const Pass& pass = src->pass;
+      if (!std::isfinite(pass.spp) || pass.spp > protocol::kMaxPassSpp) {
+        throw InputError(InputErrorKind::invalid_value, p.path.string(),
+                         "samples per pixel " + std::to_string(pass.spp) +
+                             " is beyond the largest accepted (1048576)");
       }
-      protocol::PassIdentity id{p.pass, p.path.string(), size, mt,
-                                hash_bytes(std::span<const unsigned char>(*bytes))};
-      bytes.reset();
-      io::PassInfo info;
-      pass_aovs.clear();
-      const Pass pass =
-          io::read_pass(p.path.string(), ro, &info, spec.output.aovs ? &pass_aovs : nullptr);
+      const io::PassInfo& info = src->info;
+      const std::vector<AovChannel>& pass_aovs = src->aovs;
       metrics_.observe("proden_stage_duration_seconds", "read", seconds_since(t0));
       t0 = Clock::now();
       const AddResult r = acc->add(pass, p.pass);
@@ -154,15 +173,17 @@ FrameRun::Outcome FrameRun::run(Input in) {
         spdlog::warn("{}: {} non-finite pixel(s) dropped", p.path.string(), r.dropped_pixels);
       }
       accepted.push_back(id);
+      accepted_passes.push_back(p);
       accepted_bytes += size;
     } catch (...) {
       hooks_.failed(p, classify_current_exception());
     }
   }
 
-  if (accepted.empty() && !in.republish) return {Result::done, acc, aovs};
+  if (accepted.empty() && !in.republish) return {Result::done, acc, aovs, false, {}};
 
   // 3. Commit (persist), then publish.
+  bool committed = false;
   std::vector<std::uint64_t> dropped_versions;
   try {
     auto t0 = Clock::now();
@@ -175,6 +196,19 @@ FrameRun::Outcome FrameRun::run(Input in) {
     const ProcessedFrame out = FrameProcessor::process(*acc, est, spec.pipeline, ectx);
     for (const auto& [stage, s] : out.stage_seconds) {
       metrics_.observe("proden_stage_duration_seconds", stage, s);
+    }
+    if (!accepted.empty() &&
+        (!std::isfinite(out.estimated_mse) || !std::isfinite(acc->total_spp()))) {
+      // These passes would poison the frame (non-finite statistics or estimates): refuse them
+      // and keep the persisted state (the resident one is dropped: it holds them).
+      std::string names;
+      for (const auto& a : accepted) names += (names.empty() ? "" : ", ") + a.pass;
+      for (const auto& p : accepted_passes) {
+        hooks_.failed(
+            p, {ErrorClass::bad_input, "invalid_value",
+                "accumulating pass(es) " + names + " would make the frame's estimates non-finite"});
+      }
+      return {Result::done, nullptr, nullptr, false, {}};
     }
     if (!accepted.empty()) {
       rec.frame = frame_no;
@@ -208,19 +242,37 @@ FrameRun::Outcome FrameRun::run(Input in) {
       t0 = Clock::now();
       // The commit point: statistics and pass identities together, atomically.
       store_.save_frame(job_id, rec, *acc, *aovs);
+      committed = true;
       metrics_.observe("proden_stage_duration_seconds", "persist", seconds_since(t0));
       hooks_.committed(rec, accepted);
       metrics_.inc("proden_passes_ingested_total", {}, static_cast<double>(accepted.size()));
       metrics_.inc("proden_ingested_bytes_total", {}, static_cast<double>(accepted_bytes));
-      for (const auto& p : batch) {
-        if (p.upload && std::any_of(accepted.begin(), accepted.end(),
-                                    [&](const auto& a) { return a.pass == p.pass; })) {
-          store_.remove_file(p.path);
-        }
+      // The accumulated uploads back the last good state until the next commit.
+      std::vector<PendingPass> uploads;
+      for (const auto& p : accepted_passes) {
+        if (p.upload) uploads.push_back(p);
+      }
+      try {
+        store_.keep_uploads(job_id, frame_no, uploads);
+      } catch (const std::exception& e) {  // committed: a restart cleans up what is left
+        spdlog::warn("job {} frame {}: keeping uploads: {}", job_id, frame_no, e.what());
       }
     }
     t0 = Clock::now();
-    fs::create_directories(spec.output.dir);
+    // The output directory is opened (and created) beneath its root now, and the files are
+    // written through that descriptor: a symlink swapped in since the job was created is refused.
+    UniqueFd out_dir;
+    if (in.roots) {
+      FileError fe = FileError::none;
+      std::string why;
+      out_dir = in.roots->make_dirs(spec.output.dir, fe, why);
+      if (!out_dir) throw std::runtime_error("output.dir " + spec.output.dir + ": " + why);
+    } else {
+      fs::create_directories(spec.output.dir);
+      out_dir = UniqueFd(::open(spec.output.dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
+    }
+    const io::OutputDirectory bound(spec.output.dir, out_dir.get());
+    store_.fault_point("publish", output_base(spec, frame_no));
     protocol::Attributes extra = {
         {"proden:version", std::to_string(rec.version)},
         {"proden:converged", rec.convergence.converged() ? "true" : "false"},
@@ -228,7 +280,15 @@ FrameRun::Outcome FrameRun::run(Input in) {
     if (!rec.view_layer.empty()) extra.emplace_back("proden:view_layer", rec.view_layer);
     const auto outputs = FrameProcessor::publish(out, output_base(spec, frame_no).string(),
                                                  spec.output.png, extra, aovs.get());
-    // Every version stays addressable (docs/api.md, "Versions").
+    // Older versions stay addressable (docs/api.md, "History and older versions"): the
+    // versions/ directory is made beneath the output root like output.dir itself.
+    if (in.roots) {
+      FileError fe = FileError::none;
+      std::string why;
+      if (!in.roots->make_dirs(spec.output.dir + "/versions", fe, why)) {
+        throw std::runtime_error("output.dir " + spec.output.dir + "/versions: " + why);
+      }
+    }
     keep_version(outputs.front(), version_file(spec, frame_no, rec.version));
     for (const auto& v : dropped_versions) {
       std::error_code ec;
@@ -272,14 +332,14 @@ FrameRun::Outcome FrameRun::run(Input in) {
     }
     spdlog::info("job {} frame {}: version {} ({} pass(es), {} spp)", job_id, frame_no, rec.version,
                  rec.passes, rec.spp);
-    return {Result::done, acc, aovs};
+    return {Result::done, acc, aovs, committed, {}};
   } catch (const std::exception& e) {
     // Persist or publish failed (disk full, permissions): drop the resident state so the next
-    // run reloads what is on disk; passes not persisted are offered again by the watcher.
+    // run reloads what is on disk; the engine retries the passes (or the publish) later.
     spdlog::error("job {} frame {}: {}", job_id, frame_no, e.what());
     metrics_.inc("proden_errors_total", "publish");
     publish_error(events_, job_id, frame_no, "", "", "publish", e.what(), false);
-    return {Result::failed, nullptr, nullptr};
+    return {Result::failed, nullptr, nullptr, committed, e.what()};
   }
 }
 

@@ -1,9 +1,11 @@
 // FrameRun: one run of one frame, and the exactly-once protocol in one place (docs/api.md,
 // "Ingestion rules"): read the batch's passes (each identified by path, size, mtime and content
 // hash), accumulate them, persist the statistics and the pass identities together in one atomic
-// file (the commit point), remove the accumulated uploads, publish the new version, record it as
-// published and announce it. A crash before the commit loses nothing (the passes are found
-// again); after it, the version is re-published on restart.
+// file (the commit point), keep the accumulated uploads aside (until the next commit: they back
+// the last good state), publish the new version, record it as published and announce it. A crash
+// before the commit loses nothing (the passes are found again); after it, the version is
+// re-published on restart. A damaged state falls back to the last good one (an error event says
+// so); nothing non-finite is ever committed.
 #pragma once
 
 #include <cstdint>
@@ -14,12 +16,14 @@
 #include <vector>
 
 #include "daemon/events.hpp"
+#include "daemon/files.hpp"
 #include "daemon/frame_state.hpp"
 #include "daemon/job_store.hpp"
 #include "daemon/metrics.hpp"
 #include "daemon/quarantine.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/aov.hpp"
+#include "proden/io/image_header.hpp"
 #include "proden/protocol/api.hpp"
 
 namespace proden::daemon {
@@ -47,6 +51,9 @@ class FrameRun {
         committed;
     // Version `version` is published as `outputs`.
     std::function<void(std::uint64_t version, const std::vector<std::string>& outputs)> published;
+    // The persisted state was damaged and `record` (the last good state) replaced it: passes
+    // that are not in it must be read again.
+    std::function<void(const FrameRecord& record)> recovered;
   };
   FrameRun(JobStore& store, Metrics& metrics, EventHub& events, Hooks hooks);
 
@@ -59,16 +66,22 @@ class FrameRun {
     std::shared_ptr<FrameAccumulator> acc;  // resident state, or null (loaded from the store)
     std::shared_ptr<AovAccumulator> aovs;   // its renderer AOVs (resident with acc)
     std::vector<PendingPass> batch;         // passes to read, any order
+    // Watched passes are read, and outputs written, beneath these roots (null: no confinement,
+    // for tests of runs that read only stored uploads); reads are bounded by `limits`.
+    const Roots* roots = nullptr;
+    io::ReadLimits limits;
   };
   enum class Result {
     done,              // ran to the end (some passes may have failed)
-    state_unreadable,  // the persisted state could not be loaded; nothing was read
+    state_unreadable,  // neither the state nor the last good one could be loaded; nothing read
     failed,            // persisting or publishing failed; the resident state must be dropped
   };
   struct Outcome {
     Result result = Result::done;
     std::shared_ptr<FrameAccumulator> acc;  // the state to keep resident (when done)
     std::shared_ptr<AovAccumulator> aovs;
+    bool committed = false;                 // a new state was persisted
+    std::string error;                      // why it failed
   };
   Outcome run(Input in);
 

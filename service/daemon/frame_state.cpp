@@ -1,5 +1,6 @@
 #include "daemon/frame_state.hpp"
 
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <stdexcept>
@@ -14,7 +15,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '1'};
+constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '2'};
+constexpr char kMagicV1[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '1'};
+constexpr std::uint64_t kFileSeed = 0x66726d32;
+
+std::uint64_t file_hash(std::span<const std::uint8_t> b) {
+  return hash_bytes({b.data(), b.size()}, kFileSeed);
+}
 
 std::uint64_t text_hash(const std::string& s) {
   return hash_bytes({reinterpret_cast<const unsigned char*>(s.data()), s.size()}, 0x66726d);
@@ -77,23 +84,34 @@ FrameRecord frame_record_from_json(const json& j) {
 
 void save_frame_state(const fs::path& path, const FrameRecord& record,
                       const FrameAccumulator& frame, const AovAccumulator& aovs) {
+  for (const auto& [name, v] :
+       {std::pair{"spp", record.spp}, {"estimated_mse", record.estimated_mse}}) {
+    if (!std::isfinite(v)) {
+      throw std::invalid_argument(path.string() + ": refusing to persist a non-finite " + name);
+    }
+  }
+  // The blob: the accumulator, then the renderer AOVs (issue 13); the record says where it splits.
   std::vector<std::uint8_t> blob = frame.serialize();
   json rec = to_json(record);
   rec["accumulator_bytes"] = blob.size();
   const std::vector<std::uint8_t> aov_blob = aovs.serialize();
   blob.insert(blob.end(), aov_blob.begin(), aov_blob.end());
-  const std::string text = rec.dump();
-  std::vector<std::uint8_t> out;
-  out.reserve(sizeof(kMagic) + 16 + text.size() + blob.size());
-  auto put64 = [&out](std::uint64_t v) {
-    const auto* p = reinterpret_cast<const std::uint8_t*>(&v);
-    out.insert(out.end(), p, p + sizeof v);
+  // Invalid UTF-8 (a message quoting a file) is replaced, never a reason to fail the commit.
+  const std::string text = rec.dump(-1, ' ', false, json::error_handler_t::replace);
+  std::vector<std::uint8_t> out(sizeof kMagic + 32 + text.size() + blob.size());
+  std::size_t at = 0;
+  auto put = [&out, &at](const void* p, std::size_t n) {
+    if (n > 0) std::memcpy(out.data() + at, p, n);
+    at += n;
   };
-  out.insert(out.end(), kMagic, kMagic + sizeof kMagic);
+  auto put64 = [&put](std::uint64_t v) { put(&v, sizeof v); };
+  put(kMagic, sizeof kMagic);
   put64(text.size());
-  out.insert(out.end(), text.begin(), text.end());
+  put(text.data(), text.size());
   put64(text_hash(text));
-  out.insert(out.end(), blob.begin(), blob.end());
+  put64(blob.size());
+  put(blob.data(), blob.size());
+  put64(file_hash(std::span<const std::uint8_t>(out).first(at)));
   write_file_atomic(path, out);
 }
 
@@ -102,7 +120,8 @@ namespace {
 FrameRecord parse_record(std::span<const std::uint8_t> b, const fs::path& path,
                          std::size_t* blob_offset, std::size_t* accumulator_bytes = nullptr) {
   std::uint64_t n = 0;
-  if (b.size() < sizeof kMagic + 8 || std::memcmp(b.data(), kMagic, sizeof kMagic) != 0) {
+  if (b.size() < sizeof kMagic + 8 || (std::memcmp(b.data(), kMagic, sizeof kMagic) != 0 &&
+                                       std::memcmp(b.data(), kMagicV1, sizeof kMagic) != 0)) {
     throw std::runtime_error(path.string() + ": not a proden frame state");
   }
   std::memcpy(&n, b.data() + sizeof kMagic, sizeof n);
@@ -152,12 +171,36 @@ FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* recor
                                         AovAccumulator* aovs) {
   auto bytes = read_file(path);
   if (!bytes) throw std::runtime_error(path.string() + ": cannot read");
+  const std::span<const std::uint8_t> all(*bytes);
+  std::span<const std::uint8_t> blob;
+  if (all.size() >= sizeof kMagic && std::memcmp(all.data(), kMagic, sizeof kMagic) == 0) {
+    // Version 2: the whole file's hash first, then the parts.
+    std::uint64_t h = 0;
+    if (all.size() < sizeof kMagic + 32) {
+      throw std::runtime_error(path.string() + ": truncated frame state");
+    }
+    std::memcpy(&h, all.data() + all.size() - 8, sizeof h);
+    if (h != file_hash(all.first(all.size() - 8))) {
+      throw std::runtime_error(path.string() + ": frame state checksum mismatch");
+    }
+  }
   std::size_t offset = 0, acc_bytes = 0;
-  FrameRecord r = parse_record(*bytes, path, &offset, &acc_bytes);
-  const auto rest = std::span<const std::uint8_t>(*bytes).subspan(offset);
-  if (acc_bytes > rest.size()) throw std::runtime_error(path.string() + ": truncated frame state");
-  FrameAccumulator acc = FrameAccumulator::deserialize(rest.first(acc_bytes));
-  if (aovs) *aovs = AovAccumulator::deserialize(rest.subspan(acc_bytes));
+  FrameRecord r = parse_record(all, path, &offset, &acc_bytes);
+  if (std::memcmp(all.data(), kMagic, sizeof kMagic) == 0) {
+    std::uint64_t m = 0;
+    if (offset + 16 > all.size()) throw std::runtime_error(path.string() + ": truncated");
+    std::memcpy(&m, all.data() + offset, sizeof m);
+    if (m != all.size() - offset - 16) {
+      throw std::runtime_error(path.string() + ": inconsistent frame state");
+    }
+    blob = all.subspan(offset + 8, m);
+    if (acc_bytes == all.size() - (offset)) acc_bytes = blob.size();  // no accumulator_bytes key
+  } else {
+    blob = all.subspan(offset);
+  }
+  if (acc_bytes > blob.size()) throw std::runtime_error(path.string() + ": truncated frame state");
+  FrameAccumulator acc = FrameAccumulator::deserialize(blob.first(acc_bytes));
+  if (aovs) *aovs = AovAccumulator::deserialize(blob.subspan(acc_bytes));
   if (acc.state_digest() != r.digest) {
     throw std::runtime_error(path.string() + ": accumulator does not match its record");
   }

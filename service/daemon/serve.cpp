@@ -154,7 +154,7 @@ int run_serve(Config c, const std::string& token) {
   Metrics metrics;
   EventHub events(c.limits.sse_history);
   Engine engine(c, roots, metrics, events);
-  Api api(c, engine, events, metrics, token);
+  Api api(c, engine, roots, events, metrics, token);
   HttpServer server(c, api, events, metrics);
   unsigned short port = 0;
   try {

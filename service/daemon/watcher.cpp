@@ -13,45 +13,6 @@ namespace proden::daemon {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-PassPattern::PassPattern(const std::string& pattern) {
-  std::string re;
-  int group = 0;
-  for (std::size_t i = 0; i < pattern.size();) {
-    if (pattern.compare(i, 7, "{frame}") == 0) {
-      re += "([0-9]+)";
-      frame_group_ = ++group;
-      i += 7;
-    } else if (pattern.compare(i, 6, "{pass}") == 0) {
-      re += "([A-Za-z0-9_-]+)";
-      pass_group_ = ++group;
-      i += 6;
-    } else if (pattern[i] == '#') {
-      std::size_t n = 0;
-      while (i + n < pattern.size() && pattern[i + n] == '#') ++n;
-      re += "([0-9]{" + std::to_string(n) + ",})";
-      frame_group_ = ++group;
-      i += n;
-    } else {
-      const char c = pattern[i];
-      if (c == '/') ++depth_;
-      if (std::strchr(".^$|()[]{}*+?\\", c)) re += '\\';
-      re += c;
-      ++i;
-    }
-  }
-  re_ = std::regex(re);
-}
-
-std::optional<PassPattern::Match> PassPattern::match(const std::string& relative) const {
-  std::smatch m;
-  if (!std::regex_match(relative, m, re_) || frame_group_ == 0 || pass_group_ == 0) {
-    return std::nullopt;
-  }
-  const std::string f = m[static_cast<std::size_t>(frame_group_)].str();
-  if (f.size() > 9) return std::nullopt;
-  return Match{std::stol(f), m[static_cast<std::size_t>(pass_group_)].str()};
-}
-
 bool is_temp_name(const std::string& name) {
   if (name.empty() || name.front() == '.' || name.back() == '~') return true;
   if (name.size() >= 4 && name.compare(name.size() - 4, 4, ".tmp") == 0) return true;
@@ -93,14 +54,21 @@ void Watcher::rescan() {
     auto n = ::write(wake_fd_, &one, sizeof one);
 }
 
-void Watcher::add_job(const std::string& id, const fs::path& dir, const std::string& pattern) {
+bool Watcher::add_job(const std::string& id, const fs::path& dir, const std::string& pattern) {
+  std::string why;
+  auto compiled = PassPattern::parse(pattern, why);
+  if (!compiled) {  // e.g. a job persisted before the pattern grammar was bounded
+    spdlog::error("job {}: watch.pattern '{}' is not watched: {}", id, pattern, why);
+    return false;
+  }
   {
     std::lock_guard lock(mu_);
     jobs_.erase(id);
-    jobs_.emplace(id, Job{dir, PassPattern(pattern)});
+    jobs_.emplace(id, Job{dir, std::move(*compiled)});
     watch_dir(id, dir, 0);
   }
   rescan();
+  return true;
 }
 
 void Watcher::remove_job(const std::string& id) {
@@ -122,8 +90,9 @@ void Watcher::watch_dir(const std::string& id, const fs::path& dir, int depth) {
   auto job = jobs_.find(id);
   if (job == jobs_.end()) return;
   if (inotify_fd_ >= 0) {
-    const int wd = ::inotify_add_watch(inotify_fd_, dir.c_str(),
-                                       IN_CLOSE_WRITE | IN_MOVED_TO | IN_CREATE | IN_ONLYDIR);
+    const int wd =
+        ::inotify_add_watch(inotify_fd_, dir.c_str(),
+                            IN_CLOSE_WRITE | IN_MOVED_TO | IN_CREATE | IN_MOVE_SELF | IN_ONLYDIR);
     if (wd >= 0) {
       auto& refs = watches_[wd];
       bool have = false;
@@ -182,6 +151,14 @@ void Watcher::read_inotify() {
       if (it == watches_.end()) continue;
       if (ev.mask & IN_IGNORED) {
         watches_.erase(it);
+        continue;
+      }
+      if (ev.mask & IN_MOVE_SELF) {
+        // A watched directory moved (perhaps out of the roots): its events would be reported
+        // under its old path. Drop the watch; the next scan watches whatever is there now.
+        ::inotify_rm_watch(inotify_fd_, ev.wd);
+        watches_.erase(it);
+        rescan_ = true;
         continue;
       }
       const auto refs = it->second;

@@ -12,7 +12,6 @@
 #include <map>
 #include <mutex>
 #include <optional>
-#include <regex>
 #include <set>
 #include <string>
 #include <thread>
@@ -20,25 +19,9 @@
 
 #include "daemon/config.hpp"
 #include "daemon/files.hpp"
+#include "daemon/pass_pattern.hpp"
 
 namespace proden::daemon {
-
-// A watch pattern compiled to a regex over paths relative to the watched directory.
-// {frame} = digits, a run of N '#' = at least N digits (Blender), {pass} = [A-Za-z0-9_-]+.
-class PassPattern {
- public:
-  explicit PassPattern(const std::string& pattern);
-  struct Match {
-    long frame;
-    std::string pass;
-  };
-  std::optional<Match> match(const std::string& relative) const;
-  int depth() const { return depth_; }  // directory levels below the watched directory
-
- private:
-  std::regex re_;
-  int frame_group_ = 0, pass_group_ = 0, depth_ = 0;
-};
 
 // True for names the watcher never reads: dot files, *.tmp, *.partial*, *~.
 bool is_temp_name(const std::string& filename);
@@ -69,7 +52,8 @@ class Watcher {
 
   void start();
   void stop();
-  void add_job(const std::string& id, const std::filesystem::path& dir, const std::string& pattern);
+  // False (logged) when `pattern` is not a valid watch pattern: nothing is watched for the job.
+  bool add_job(const std::string& id, const std::filesystem::path& dir, const std::string& pattern);
   void remove_job(const std::string& id);
   void rescan();  // schedule a full scan soon (e.g. after a resume)
 

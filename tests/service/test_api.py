@@ -147,7 +147,9 @@ class ApiTest(unittest.TestCase):
         s, b = self.d.json("PUT", path % (jid, "a"), p0)
         self.assertEqual(s, 202, b)
         self.assertEqual(b["status"], "queued")
-        s, b = self.d.json("PUT", path % (jid, "a"), p0)
+        s, b = self.d.json("PUT", path % (jid, "a"), p0)  # the same bytes again: idempotent
+        self.assertIn((s, b["status"]), ((202, "queued"), (200, "ingested")), b)
+        s, b = self.d.json("PUT", path % (jid, "a"), p1)  # other bytes for the same pass
         self.assert_error(s, b, 409, "conflict")
         s, b = self.d.json("PUT", path % (jid, "b"), b"not an exr at all")
         self.assert_error(s, b, 400, "invalid_pass")

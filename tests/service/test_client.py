@@ -86,8 +86,10 @@ class ClientTest(unittest.TestCase):
                 break
         self.assertGreater(got[-1].id, first.id)
         self.assertEqual(got[-1].data["version"], 2)
+        # The same bytes again are the same request (idempotent); other bytes conflict.
+        self.assertEqual(c.upload_pass(jid, 1, "up1", CORNELL[1])["status"], "ingested")
         with self.assertRaises(ProdenError) as e:
-            c.upload_pass(jid, 1, "up1", CORNELL[1])
+            c.upload_pass(jid, 1, "up1", CORNELL[2])
         self.assertEqual(e.exception.status, 409)
 
         # A reader following events across a daemon restart on the same port: it reconnects,

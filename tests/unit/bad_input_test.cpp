@@ -117,7 +117,7 @@ TEST_CASE("corrupt pixel data and garbage files are refused", "[bad-input]") {
     std::mt19937 rng(2);
     for (int i = 0; i < 4096; ++i) out.put(static_cast<char>(rng()));
   }
-  fr.expect_rejected(g, InputErrorKind::unreadable, "not a readable image");
+  fr.expect_rejected(g, InputErrorKind::unsupported_format, "not a readable image");
 }
 
 TEST_CASE("wrong resolution is refused", "[bad-input]") {

@@ -2,9 +2,11 @@
 // the closed-form baseline share, and the closed-form mixer itself.
 #pragma once
 
+#include <algorithm>
 #include <string>
 
 #include "proden/region.hpp"
+#include "proden/tstat.hpp"
 
 namespace proden {
 
@@ -12,6 +14,9 @@ namespace proden {
 struct MixInputs {
   int width = 0, height = 0;
   View x, y, variance, sure, divergence;  // 3 channels each
+  // Where `variance` came from (its degrees of freedom): the closed-form mixer weighs how well
+  // its window sums pin alpha down. Default: treated as exact.
+  VarianceOrigin origin{};
 };
 
 class Mixer {
@@ -44,13 +49,21 @@ struct ClosedFormParams {
   WindowWeight weight = WindowWeight::relative;
   float variance_floor = 1e-4f;  // variance weights: floor = variance_floor * (mean x^2 + 0.01)
   int radius = 12;               // box window (2r+1)^2 that smooths the noisy per-pixel estimates
+  // Two scales (stein rule; docs/pipeline.md, "The mixer's two scales"): alpha from the radius
+  // window is shrunk toward alpha from a wide_radius window unless the two differ by more than
+  // `garrote` standard errors of their difference (a non-negative garrote). wide_radius <= radius:
+  // one window.
+  int wide_radius = 24;
+  float garrote = 2.0f;
 };
 
 class ClosedFormMixer final : public Mixer {
  public:
   explicit ClosedFormMixer(ClosedFormParams p = {}) : params_(p) {}
   std::string name() const override;
-  int radius() const override { return params_.radius + 1; }  // + the weights' 3x3
+  int radius() const override {  // + the weights' 3x3
+    return std::max(params_.radius, params_.wide_radius) + 1;
+  }
   void mix(const MixInputs& in, const Rect& out, Buffer& alpha) const override;
 
  private:

@@ -1,5 +1,8 @@
 // Writes named float channels to an image file (EXR multi-layer by dotted names, or any format
-// OIIO writes), atomically: temp file in the target directory, fsync, rename.
+// OIIO writes), atomically: a new temp file in the target directory (O_EXCL|O_NOFOLLOW), written
+// through its descriptor, fsync, rename, directory fsync. write_image_at works relative to a
+// directory descriptor the caller holds, so the file lands in exactly that directory even if
+// its path has been swapped for a symlink meanwhile (the daemon's output confinement).
 #pragma once
 
 #include <span>
@@ -26,6 +29,31 @@ struct WriteOptions {
 // Throws std::runtime_error naming the path on failure; never leaves a partial file at `path`.
 void write_image(const std::string& path, int width, int height,
                  std::span<const NamedChannel> channels, const WriteOptions& options = {});
+
+// The same into the directory open at `dir_fd` (O_RDONLY|O_DIRECTORY), as the single file name
+// `name` (the extension picks the format). Errors name `display` (defaults to `name`).
+void write_image_at(int dir_fd, const std::string& name, int width, int height,
+                    std::span<const NamedChannel> channels, const WriteOptions& options = {},
+                    const std::string& display = {});
+
+// While alive, write_image() calls on this thread for files directly in `dir` go through the
+// directory descriptor `dir_fd` (write_image_at) instead of opening `dir` by path: a caller that
+// opened its output directory safely (the daemon, beneath an allowed root) binds it around code
+// that writes by path. Bindings nest; the innermost one for a directory wins.
+class OutputDirectory {
+ public:
+  OutputDirectory(std::string dir, int dir_fd);
+  ~OutputDirectory();
+  OutputDirectory(const OutputDirectory&) = delete;
+  OutputDirectory& operator=(const OutputDirectory&) = delete;
+
+ private:
+  std::string dir_;
+  int fd_;
+  OutputDirectory* outer_;
+  friend void write_image(const std::string&, int, int, std::span<const NamedChannel>,
+                          const WriteOptions&);
+};
 
 // Appends `prefix + suffix[c]` channels for each plane of `image` ("render." + "R", ...).
 void add_layer(std::vector<NamedChannel>& out, const std::string& prefix, const Image& image,

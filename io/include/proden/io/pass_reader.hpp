@@ -1,13 +1,18 @@
-// Reads one pass of a frame from disk (OpenEXR single/multi-part, Radiance HDR, anything OIIO
-// reads) into planar buffers, through a renderer profile. Bad files raise proden::InputError
-// naming the file and the reason; nothing is returned half-read.
+// Reads one pass of a frame (OpenEXR single/multi-part or Radiance HDR, recognised by their magic
+// bytes; nothing else) into planar buffers, through a renderer profile. The header is walked and
+// bounded (image_header.hpp) before OpenImageIO decodes anything, and OIIO reads only through an
+// IOProxy over bytes proden supplies (a memory buffer or an open descriptor), never by path.
+// Bad files raise proden::InputError naming the file and the reason (as printable text);
+// nothing is returned half-read.
 #pragma once
 
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "proden/aov.hpp"
+#include "proden/io/image_header.hpp"
 #include "proden/io/profile.hpp"
 #include "proden/pass.hpp"
 
@@ -19,15 +24,20 @@ struct ReadOptions {
   bool features = true;       // load albedo/normal/depth when present
   bool variance = true;       // load renderer variance when present
   std::string view_layer;     // Cycles view layer to read ("" = the alphabetically first)
+  ReadLimits limits;          // bounds checked before decoding (CLI defaults: generous)
+  // The frame's size when it is known (its first pass, or the job's declaration): a pass of any
+  // other size is refused from its header, before its pixels are decoded.
+  std::optional<std::pair<int, int>> frame_size;
 };
 
 enum class SppSource { header, option, assumed };
 std::string_view to_string(SppSource s);
 
-// What was detected in a pass file.
+// What was detected in a pass file. Every string is printable text (io::printable): channel
+// names and attribute values come from the file and may hold any bytes.
 struct PassInfo {
   std::string path;
-  std::string format;  // OIIO format name: "openexr", "hdr", ...
+  std::string format;  // OIIO format name: "openexr" or "hdr"
   Renderer renderer = Renderer::generic;
   std::string layer;                // Blender view layer read, if any
   std::vector<std::string> layers;  // every Cycles view layer in the file, sorted
@@ -42,15 +52,33 @@ struct PassInfo {
   std::optional<double> render_time;  // seconds, if the header says
   std::vector<std::string> aovs;      // renderer AOVs as they would be written (aov_sources)
   std::vector<std::pair<std::string, std::string>> aov_attributes;  // e.g. Cryptomatte's
+  std::uint64_t read_bytes = 0;  // estimated peak memory of reading the pass
   std::string to_string() const;
 };
 
-// Header-only inspection (does not read pixels).
-PassInfo probe_pass(const std::string& path, const ReadOptions& options = {});
+// A ByteSource over an open descriptor of a regular file (pread; the caller keeps ownership).
+class FdSource final : public ByteSource {
+ public:
+  FdSource(int fd, std::uint64_t size) : fd_(fd), size_(size) {}
+  std::uint64_t size() const override { return size_; }
+  std::size_t read(std::uint64_t offset, void* buf, std::size_t n) const override;
 
-// Reads and validates the whole file; with `aovs`, also its renderer AOVs (PassInfo::aovs).
+ private:
+  int fd_;
+  std::uint64_t size_;
+};
+
+// Header-only inspection (does not decode pixels; checks the read would fit the limits).
+PassInfo probe_pass(const std::string& path, const ReadOptions& options = {});
+PassInfo probe_pass(const ByteSource& source, const std::string& name,
+                    const ReadOptions& options = {});
+
+// Reads and validates the whole file. `name` names the source in errors and in PassInfo::path.
+// With `aovs`, also its renderer AOVs (PassInfo::aovs).
 Pass read_pass(const std::string& path, const ReadOptions& options = {}, PassInfo* info = nullptr,
                std::vector<AovChannel>* aovs = nullptr);
+Pass read_pass(const ByteSource& source, const std::string& name, const ReadOptions& options = {},
+               PassInfo* info = nullptr, std::vector<AovChannel>* aovs = nullptr);
 
 // Reads the RGB colour of any image proden reads or writes (passes, references, outputs).
 Image read_rgb(const std::string& path, const ReadOptions& options = {});
@@ -58,6 +86,8 @@ Image read_rgb(const std::string& path, const ReadOptions& options = {});
 // Reads the RGB channels "<layer>.{R,G,B}" (e.g. proden's "render", "denoised" AOVs); "" or
 // "result" reads the image's own colour as read_rgb() does.
 Image read_layer(const std::string& path, const std::string& layer,
+                 const ReadOptions& options = {});
+Image read_layer(const ByteSource& source, const std::string& name, const std::string& layer,
                  const ReadOptions& options = {});
 
 }  // namespace proden::io

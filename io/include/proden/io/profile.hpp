@@ -9,6 +9,8 @@
 #include <utility>
 #include <vector>
 
+#include "proden/io/image_header.hpp"
+
 namespace proden::io {
 
 enum class Renderer { automatic, cycles, povray, generic };
@@ -27,6 +29,12 @@ struct ChannelMap {
   std::string spp_attribute;          // header attribute carrying samples per pixel, if any
   std::string render_time_attribute;  // header attribute carrying render time, if any
 };
+
+// The file formats a renderer's passes come in, checked by magic bytes before decoding: Cycles
+// writes OpenEXR; POV-Ray writes OpenEXR or Radiance HDR; generic and auto take both. Anything
+// else (PNG, TIFF, ...: 8-bit display images) is refused, whatever the file is called.
+std::span<const FileFormat> accepted_formats(Renderer r);
+bool accepts(Renderer r, FileFormat f);
 
 // Picks the profile for a file with these channel names and header-attribute values.
 // `forced` != automatic selects a profile explicitly. Returns nullopt if the colour channels of

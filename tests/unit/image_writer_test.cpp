@@ -1,0 +1,113 @@
+// Atomic image writes relative to a held directory descriptor (io/image_writer.hpp): the file
+// lands in the directory that was opened, a symlink planted at its name is replaced rather than
+// written through, and OIIO writes only through the descriptor.
+#include <fcntl.h>
+#include <unistd.h>
+#include <catch2/catch.hpp>
+
+#include <filesystem>
+#include <fstream>
+
+#include "proden/io/image_writer.hpp"
+#include "proden/io/pass_reader.hpp"
+#include "test_support.hpp"
+
+using namespace proden;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::vector<io::NamedChannel> rgb(const Image& img) {
+  std::vector<io::NamedChannel> ch;
+  io::add_layer(ch, "", img);
+  return ch;
+}
+
+std::string slurp(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
+}
+
+// dir/out opened (the descriptor returned), then moved to dir/held and replaced by a symlink to
+// dir/outside: what a symlink swapped in after the daemon opened its output directory looks like.
+int open_then_swap(const test::TempDir& dir) {
+  const fs::path out = dir.path() / "out";
+  fs::create_directories(out);
+  fs::create_directories(dir.path() / "outside");
+  const int fd = ::open(out.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  REQUIRE(fd >= 0);
+  fs::rename(out, dir.path() / "held");
+  fs::create_symlink(dir.path() / "outside", out);
+  return fd;
+}
+
+}  // namespace
+
+TEST_CASE("write_image_at writes into the held directory, not where its path now leads",
+          "[io][writer]") {
+  test::TempDir dir;
+  const fs::path outside = dir.path() / "outside";
+  const int fd = open_then_swap(dir);
+  const Image img(5, 4, 3, 0.5f);
+  io::write_image_at(fd, "frame_0001.exr", 5, 4, rgb(img));
+  io::WriteOptions png;
+  png.compression = "";
+  io::write_image_at(fd, "frame_0001.png", 5, 4, rgb(img), png);
+  ::close(fd);
+  CHECK(fs::is_empty(outside));
+  CHECK(io::read_rgb((dir.path() / "held" / "frame_0001.exr").string()).at(2, 2, 1) == 0.5f);
+  CHECK(slurp(dir.path() / "held" / "frame_0001.png").starts_with("\x89PNG"));
+  // No temp file left behind, and nothing created in the working directory by name.
+  for (const auto& e : fs::directory_iterator(dir.path() / "held")) {
+    CHECK(e.path().filename().string().front() != '.');
+  }
+}
+
+TEST_CASE("a symlink planted at the output name is replaced, never written through",
+          "[io][writer]") {
+  test::TempDir dir;
+  const fs::path victim = dir.path() / "victim.txt";
+  std::ofstream(victim) << "precious";
+  fs::create_symlink(victim, dir.path() / "frame.exr");
+  fs::create_hard_link(victim, dir.path() / "hard.exr");
+  const Image img(3, 3, 3, 1.0f);
+  io::write_image((dir.path() / "frame.exr").string(), 3, 3, rgb(img));
+  io::write_image((dir.path() / "hard.exr").string(), 3, 3, rgb(img));
+  CHECK(slurp(victim) == "precious");
+  CHECK_FALSE(fs::is_symlink(dir.path() / "frame.exr"));
+  CHECK(io::read_rgb((dir.path() / "frame.exr").string()).at(1, 1, 0) == 1.0f);
+  CHECK(fs::hard_link_count(victim) == 1);
+}
+
+TEST_CASE("write errors name the file and leave nothing behind", "[io][writer]") {
+  test::TempDir dir;
+  const Image img(3, 3, 3, 1.0f);
+  CHECK_THROWS_WITH(io::write_image((dir.path() / "nodir" / "f.exr").string(), 3, 3, rgb(img)),
+                    Catch::Matchers::Contains("nodir/f.exr"));
+  const int fd = ::open(dir.path().c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  CHECK_THROWS(io::write_image_at(fd, "a/b.exr", 3, 3, rgb(img)));
+  CHECK_THROWS(io::write_image_at(fd, "f.unknownformat", 3, 3, rgb(img)));
+  ::close(fd);
+  CHECK(fs::is_empty(dir.path()));
+}
+
+TEST_CASE("an OutputDirectory binding routes path-based writes through its descriptor",
+          "[io][writer]") {
+  test::TempDir dir;
+  const fs::path out = dir.path() / "out", outside = dir.path() / "outside";
+  const int fd = open_then_swap(dir);
+  const Image img(2, 2, 3, 0.25f);
+  {
+    const io::OutputDirectory bound(out.string() + "/", fd);
+    io::write_image((out / "a.exr").string(), 2, 2, rgb(img));
+    // Other directories are not affected.
+    io::write_image((dir.path() / "b.exr").string(), 2, 2, rgb(img));
+  }
+  // Unbound again: the path is followed as usual.
+  io::write_image((out / "c.exr").string(), 2, 2, rgb(img));
+  ::close(fd);
+  CHECK(fs::exists(dir.path() / "held" / "a.exr"));
+  CHECK(fs::exists(dir.path() / "b.exr"));
+  CHECK_FALSE(fs::exists(outside / "a.exr"));
+  CHECK(fs::exists(outside / "c.exr"));
+}
