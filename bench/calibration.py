@@ -56,7 +56,7 @@ def denoise(proden, passes, out, denoiser, no_features):
 
 def reference(proden, scene_dir, tmp):
     """The reference's mean and variance of the mean (proden's own accumulation, denoiser none)."""
-    out = os.path.join(tmp, "ref.exr")
+    out = os.path.join(tmp, "ref_%s.exr" % os.path.basename(scene_dir.rstrip("/")))
     denoise(proden, sorted(glob.glob(os.path.join(scene_dir, "reference", "pass_*.exr"))), out,
             "none", False)
     return read_rgb(out, "render."), read_rgb(out, "variance.")
@@ -83,7 +83,9 @@ def main():
                 for den in a.denoisers:
                     for cfg in a.configs:
                         k, nofeat = CONFIGS[cfg]
-                        out = os.path.join(tmp, "z.exr")
+                        # A new name per cell: OIIO's image cache can serve a file rewritten
+                        # within the same second from its old contents.
+                        out = os.path.join(tmp, "z_%s_%d_%s_%s.exr" % (scene, level, den, cfg))
                         j = denoise(a.proden, passes[:k], out, den, nofeat)
                         z = read_rgb(out)
                         sq = (z - ref) ** 2 - ref_var
