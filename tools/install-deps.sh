@@ -13,6 +13,9 @@ packages=(
   python3 curl                                              # service tests, make run
   libbenchmark-dev libopenblas-dev python3-matplotlib       # make bench (micro, sgemm, plots)
   blender python3-torch python3-numpy python3-openimageio   # learned mixer: data, training, tests
+  povray povray-includes                                    # POV-Ray samples and their tests
+  slurm-wlm munge                                           # Slurm end-to-end test (own cluster)
+  nodejs                                                    # Flamenco job type test harness
   chromium                                                  # dashboard browser tests (playwright-core)
   "$@"
 )

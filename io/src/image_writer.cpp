@@ -179,4 +179,8 @@ void write_image(const std::string& path, int width, int height,
   ::close(dir_fd);
 }
 
+void add_aovs(std::vector<NamedChannel>& out, const std::vector<AovChannel>& aovs) {
+  for (const auto& a : aovs) out.push_back({a.name, a.plane.data()});
+}
+
 }  // namespace proden::io

@@ -240,11 +240,28 @@ bool valid_spp(double spp) {
 struct Resolved {
   ChannelMap map;
   std::vector<std::string> colour, albedo, normal, depth, variance;
+  std::vector<AovSource> aovs;
 };
 
 Resolved resolve(const Header& h, const std::string& path, const ReadOptions& options,
                  PassInfo& info) {
-  auto map = detect_profile(h.channels, h.attribute_values, options.renderer);
+  std::vector<std::string> attribute_names;
+  for (const auto& [k, v] : h.attributes) attribute_names.push_back(k);
+  auto map = detect_profile(h.channels, h.attribute_values, options.renderer, attribute_names,
+                            options.view_layer);
+  if (!options.view_layer.empty()) {  // a chosen Cycles view layer must be there
+    const auto any =
+        detect_profile(h.channels, h.attribute_values, options.renderer, attribute_names);
+    if (any && any->renderer == Renderer::cycles &&
+        std::find(any->layers.begin(), any->layers.end(), options.view_layer) ==
+            any->layers.end()) {
+      std::string have;
+      for (const auto& l : any->layers) have += (have.empty() ? "" : ", ") + l;
+      fail(InputErrorKind::missing_channels, path,
+           "no view layer '" + options.view_layer +
+               "' (the file has: " + (have.empty() ? "none" : have) + ")");
+    }
+  }
   if (!map) {
     std::string found;
     for (const auto& c : h.channels) found += (found.empty() ? "" : ", ") + c;
@@ -252,7 +269,7 @@ Resolved resolve(const Header& h, const std::string& path, const ReadOptions& op
          "no colour channels (expected R,G,B or <ViewLayer>.Combined.{R,G,B} for profile " +
              std::string(to_string(options.renderer)) + "); found: " + found);
   }
-  Resolved r{*map, pick(h, map->colour), {}, {}, {}, {}};
+  Resolved r{*map, pick(h, map->colour), {}, {}, {}, {}, aov_sources(*map, h.channels)};
   if (options.features) {
     r.albedo = pick(h, map->albedo);
     r.normal = pick(h, map->normal);
@@ -264,6 +281,14 @@ Resolved resolve(const Header& h, const std::string& path, const ReadOptions& op
   info.format = h.format;
   info.renderer = map->renderer;
   info.layer = printable(map->layer);
+  for (const auto& l : map->layers) info.layers.push_back(printable(l));
+  info.aovs.clear();
+  for (const auto& a : r.aovs) info.aovs.push_back(printable(a.name));
+  {
+    const std::vector<std::pair<std::string, std::string>> attrs(h.attributes.begin(),
+                                                                 h.attributes.end());
+    info.aov_attributes = aov_attributes(*map, attrs, r.aovs);
+  }
   info.width = h.width;
   info.height = h.height;
   info.subimages = h.subimages;
@@ -422,12 +447,22 @@ struct Prepared {
   Resolved r;
 };
 
-Prepared prepare(const ByteSource& src, const std::string& name, const ReadOptions& options) {
+// The channel sets a read loads: colour, albedo, normal, depth, variance, then (with `aovs`) one
+// set per renderer AOV.
+std::vector<std::vector<std::string>> channel_sets(const Resolved& r, bool aovs) {
+  std::vector<std::vector<std::string>> sets = {r.colour, r.albedo, r.normal, r.depth, r.variance};
+  if (aovs) {
+    for (const auto& a : r.aovs) sets.push_back({a.channel});
+  }
+  return sets;
+}
+
+Prepared prepare(const ByteSource& src, const std::string& name, const ReadOptions& options,
+                 bool aovs = false) {
   Prepared p{open_source(src, name, options), {}, {}, {}};
   p.h = read_header(*p.op.in, p.op.summary, name, options.limits);
   p.r = resolve(p.h, name, options, p.info);
-  ChannelLoader plan(*p.op.in, p.h, name,
-                     {p.r.colour, p.r.albedo, p.r.normal, p.r.depth, p.r.variance});
+  ChannelLoader plan(*p.op.in, p.h, name, channel_sets(p.r, aovs));
   // Counted as if the file were in memory: callers reading through a descriptor use less.
   p.info.read_bytes = plan.peak_bytes(src.size());
   check_budget(p.info.read_bytes, name, options.limits);
@@ -460,11 +495,9 @@ PassInfo probe_pass(const std::string& path, const ReadOptions& options) {
 }
 
 Pass read_pass(const ByteSource& source, const std::string& name, const ReadOptions& options,
-               PassInfo* info_out) {
-  Prepared p = prepare(source, name, options);
-  auto images = ChannelLoader(*p.op.in, p.h, name,
-                              {p.r.colour, p.r.albedo, p.r.normal, p.r.depth, p.r.variance})
-                    .load();
+               PassInfo* info_out, std::vector<AovChannel>* aovs) {
+  Prepared p = prepare(source, name, options, aovs != nullptr);
+  auto images = ChannelLoader(*p.op.in, p.h, name, channel_sets(p.r, aovs != nullptr)).load();
   Pass pass;
   pass.colour = std::move(images[0]);
   pass.albedo = std::move(images[1]);
@@ -472,14 +505,21 @@ Pass read_pass(const ByteSource& source, const std::string& name, const ReadOpti
   pass.depth = std::move(images[3]);
   pass.variance = std::move(images[4]);
   pass.spp = p.info.spp;
+  if (aovs) {  // the renderer AOVs, one channel each, after the five sets above
+    aovs->clear();
+    for (std::size_t k = 0; k < p.r.aovs.size(); ++k) {
+      aovs->push_back({p.r.aovs[k].name, std::move(images[5 + k])});
+    }
+  }
   p.op.in->close();
   if (info_out) *info_out = std::move(p.info);
   return pass;
 }
 
-Pass read_pass(const std::string& path, const ReadOptions& options, PassInfo* info_out) {
+Pass read_pass(const std::string& path, const ReadOptions& options, PassInfo* info_out,
+               std::vector<AovChannel>* aovs) {
   const auto [fd, size] = open_regular(path);
-  return read_pass(FdSource(fd->get(), size), path, options, info_out);
+  return read_pass(FdSource(fd->get(), size), path, options, info_out, aovs);
 }
 
 Image read_layer(const ByteSource& source, const std::string& name, const std::string& layer,

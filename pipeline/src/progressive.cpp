@@ -50,35 +50,6 @@ bool all_zero(const Image& img) {
   return std::all_of(d.begin(), d.end(), [](float v) { return v == 0.0f; });
 }
 
-// The error of the render itself: the mean of Var[x] (non-finite values count as 0, as the stages
-// see them).
-double mean_variance(const Image& variance) {
-  const auto v = variance.data();
-  if (v.empty()) return 0.0;
-  double sum = 0.0;
-  for (float x : v) sum += std::isfinite(x) ? std::clamp(x, 0.0f, kMaxVariance) : 0.0f;
-  return sum / static_cast<double>(v.size());
-}
-
-// Mean squared error of z = x + alpha (y - x) from the pipeline's own numbers, no reference: SURE
-// of z with alpha held fixed, per pixel and channel (1 - a) var + a SURE(y) - a (1 - a) (y - x)^2.
-double estimated_result_mse(const Image& x, const Image& variance, const PipelineResult& r) {
-  const auto xv = x.data(), vv = variance.data(), yv = r.denoised.data(), av = r.alpha.data(),
-             sv = r.sure.data();
-  const std::size_t n = std::min({xv.size(), vv.size(), yv.size(), av.size(), sv.size()});
-  if (n == 0) return 0.0;
-  double sum = 0.0, floor = 0.0;
-  for (std::size_t i = 0; i < n; ++i) {
-    const double a = av[i], d = static_cast<double>(yv[i]) - xv[i];
-    sum += (1.0 - a) * vv[i] + a * sv[i] - a * (1.0 - a) * d * d;
-    floor += (1.0 - a) * (1.0 - a) * vv[i];
-  }
-  // Per-pixel clamping would bias the mean up (interior: 4-5x); the unclamped mean can go below
-  // what the render's share alone contributes when SURE is biased low (noisy features correlated
-  // with x's noise), so it is floored there: MSE(z) >= (1-a)^2 var when div >= 0.
-  return std::max(sum, floor) / static_cast<double>(n);
-}
-
 // A denoiser's output over a region with what SURE needs: y, dy/dx (analytic divergence only),
 // the divergence and SURE itself.
 struct Denoised {
@@ -443,7 +414,7 @@ void Pipeline::commit() {
   committed_ = true;
 }
 
-PipelineResult Pipeline::execute(const FrameEstimate& frame) {
+PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext& error_in) {
   const auto t_start = Clock::now();
   if (!committed_) {
     throw std::logic_error("Pipeline::execute: commit() the options before executing");
@@ -457,6 +428,8 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
   if (!scratch_) scratch_ = std::make_unique<Scratch>();  // a moved-from pipeline, re-committed
   Scratch& s = *scratch_;
 
+  ErrorContext error = error_in;
+  error.variance_source = frame.variance_source;
   PipelineResult res;
   res.render = frame.mean;
   res.variance = frame.variance;
@@ -468,7 +441,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
 
   if (!denoiser_) {  // denoiser "none": publish the render; its own error is Var[x]
     res.result = frame.mean;
-    res.estimated_error = {mean_variance(frame.variance), error_source::variance};
+    res.estimated_error = estimate_error({&frame.mean, &frame.variance, &res.result}, error);
     res.timings.wall = seconds(t_start, Clock::now());
     return res;
   }
@@ -495,7 +468,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
     res.denoised = x;
     res.alpha = Image(W, H, 3, 0.0f);
     res.sure = Image(W, H, 3, 0.0f);
-    res.estimated_error = {0.0, error_source::variance};
+    res.estimated_error = estimate_error({&x, &var, &res.result}, error);
     res.timings.wall = seconds(t_start, Clock::now());
     return res;
   }
@@ -649,8 +622,9 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame) {
     res.timings.ttest += tm.ttest;
     res.timings.compose += tm.compose;
   });
-  // Error of z = x + a (y - x) from the pipeline's own estimates (SURE of z).
-  res.estimated_error = {estimated_result_mse(x, var, res), error_source::variance_sure};
+  // Error of z = x + a (y - x) from the pipeline's own estimates (SURE of z), with its interval.
+  res.estimated_error =
+      estimate_error({&x, &var, &res.result, &res.denoised, &res.alpha, &res.sure}, error);
   res.timings.wall = seconds(t_start, Clock::now());
   return res;
 }

@@ -136,6 +136,62 @@ JobSpec parse_job_spec(const json& body) {
     if (!o["png"].is_boolean()) bad("output.png", "must be a boolean");
     j.output.png = j.output.png || o["png"].get<bool>();
   }
+  if (o.contains("name") && !o["name"].is_null()) {
+    j.output.name = get_string(o, "name", "output.name", false);
+    if (!charset(j.output.name, 128, [](unsigned char c) {
+          return std::isalnum(c) || c == '.' || c == '_' || c == '-' || c == '#' || c == '{' ||
+                 c == '}';
+        })) {
+      bad("output.name", "1-128 characters of A-Z a-z 0-9 . _ - # { }");
+    }
+    const bool frame_tag = j.output.name.find("{frame}") != std::string::npos;
+    const auto hashes = std::count(j.output.name.begin(), j.output.name.end(), '#');
+    const auto first = j.output.name.find('#');
+    const auto run_end =
+        std::min(j.output.name.find_first_not_of('#', first), j.output.name.size());
+    const bool one_run = hashes > 0 && run_end - first == static_cast<std::size_t>(hashes);
+    if (frame_tag == (hashes > 0) || (hashes > 0 && !one_run)) {
+      bad("output.name", "needs exactly one frame placeholder: {frame} or one run of #");
+    }
+    std::string rest = j.output.name;
+    for (const char* tag : {"{job}", "{frame}"}) {
+      for (auto at = rest.find(tag); at != std::string::npos; at = rest.find(tag)) {
+        rest.erase(at, std::string_view(tag).size());
+      }
+    }
+    if (rest.find_first_of("{}") != std::string::npos) {
+      bad("output.name", "placeholders are {job}, {frame} and #");
+    }
+    if (j.output.name == "." || j.output.name == "..") bad("output.name", "not a file name");
+  }
+  if (o.contains("history") && !o["history"].is_null()) {
+    if (!o["history"].is_number_integer() || o["history"].get<long long>() < 0 ||
+        o["history"].get<long long>() > 1000) {
+      bad("output.history", "an integer 0-1000");
+    }
+    j.output.history = o["history"].get<int>();
+  }
+  if (o.contains("aovs") && !o["aovs"].is_null()) {
+    if (!o["aovs"].is_boolean()) bad("output.aovs", "must be a boolean");
+    j.output.aovs = o["aovs"].get<bool>();
+  }
+  if (body.contains("view_layer") && !body["view_layer"].is_null()) {
+    j.view_layer = get_string(body, "view_layer", "view_layer", false);
+    if (j.view_layer.empty() || j.view_layer.size() > 64 ||
+        j.view_layer.find_first_of(std::string_view("\0\n\r", 3)) != std::string::npos) {
+      bad("view_layer", "1-64 characters, a Blender view layer name");
+    }
+  }
+  if (body.contains("target") && !body["target"].is_null()) {
+    j.target = parse_target(body["target"], "target");
+  }
+  if (body.contains("min_passes") && !body["min_passes"].is_null()) {
+    if (!body["min_passes"].is_number_integer() || body["min_passes"].get<long long>() < 1 ||
+        body["min_passes"].get<long long>() > 100000) {
+      bad("min_passes", "an integer 1-100000");
+    }
+    j.min_passes = body["min_passes"].get<int>();
+  }
   if (body.contains("paused")) {
     if (!body["paused"].is_boolean()) bad("paused", "must be a boolean");
     j.paused = body["paused"].get<bool>();
@@ -151,12 +207,18 @@ json to_json(const JobSpec& j) {
               {"pipeline", pipeline_json(j.pipeline)},
               {"output",
                {{"dir", j.output.dir},
-                {"formats", j.output.png ? json::array({"exr", "png"}) : json::array({"exr"})}}},
+                {"formats", j.output.png ? json::array({"exr", "png"}) : json::array({"exr"})},
+                {"name", j.output.name},
+                {"history", j.output.history},
+                {"aovs", j.output.aovs}}},
+              {"min_passes", j.min_passes},
               {"paused", j.paused},
               {"state", j.paused ? "paused" : "active"},
               {"created", j.created}};
   out["watch"] = j.watch ? json{{"dir", j.watch->dir}, {"pattern", j.watch->pattern}} : json();
   out["spp"] = j.spp ? json(*j.spp) : json();
+  out["target"] = j.target ? to_json(*j.target) : json();
+  out["view_layer"] = j.view_layer.empty() ? json() : json(j.view_layer);
   return out;
 }
 
@@ -189,8 +251,14 @@ json to_json(const FrameStatus& f, bool detail) {
   json j = {{"job", f.job},         {"frame", f.frame},
             {"passes", f.passes},   {"spp", f.spp},
             {"version", f.version}, {"updated", f.updated.empty() ? json() : json(f.updated)},
-            {"pending", f.pending}};
-  put_estimated_error(j, f.estimated_mse, f.estimated_mse_source);
+            {"pending", f.pending}, {"converged", f.converged}};
+  // The full estimated_error object of the latest version (docs/error_estimate.md); before the
+  // first one, the pipeline's mean error alone.
+  j["estimated_mse"] = f.estimated_mse;
+  j["estimated_mse_source"] = f.estimated_mse_source;
+  j["estimated_error"] = f.estimated_error.is_null()
+                             ? json{{"mse", f.estimated_mse}, {"source", f.estimated_mse_source}}
+                             : f.estimated_error;
   if (!detail) return j;
   j["width"] = f.width;
   j["height"] = f.height;
@@ -203,7 +271,36 @@ json to_json(const FrameStatus& f, bool detail) {
   j["pass_list"] = passes;
   j["quarantined"] = f.quarantined;
   j["outputs"] = f.outputs;
+  j["convergence"] = f.convergence;
+  j["renderer"] = f.renderer.empty() ? json() : json(f.renderer);
+  j["view_layer"] = f.view_layer.empty() ? json() : json(f.view_layer);
+  j["view_layers"] = f.view_layers;
+  j["aovs"] = f.aovs;
+  j["versions"] = f.versions;
   return j;
+}
+
+std::string expand_output_name(const std::string& t, const std::string& job, long frame) {
+  std::string out;
+  for (std::size_t i = 0; i < t.size();) {
+    if (t.compare(i, 5, "{job}") == 0) {
+      out += job;
+      i += 5;
+    } else if (t.compare(i, 7, "{frame}") == 0) {
+      out += std::to_string(frame);
+      i += 7;
+    } else if (t[i] == '#') {
+      std::size_t n = 0;
+      while (i + n < t.size() && t[i + n] == '#') ++n;
+      std::string digits = std::to_string(frame);
+      if (digits.size() < n) digits.insert(0, n - digits.size(), '0');
+      out += digits;
+      i += n;
+    } else {
+      out += t[i++];
+    }
+  }
+  return out;
 }
 
 std::string now_rfc3339() {

@@ -37,6 +37,8 @@ json to_json(const io::PassInfo& i) {
             {"spp_source", io::to_string(i.spp_source)},
             {"layout", to_json(i.layout)}};
   if (!i.layer.empty()) j["layer"] = i.layer;
+  if (!i.layers.empty()) j["layers"] = i.layers;
+  j["aovs"] = i.aovs;
   j["render_time_seconds"] = i.render_time ? json(*i.render_time) : json(nullptr);
   return j;
 }

@@ -3,6 +3,7 @@
 #include <sstream>
 
 #include "proden/io/image_writer.hpp"
+#include "proden/protocol/estimate.hpp"
 #include "proden/protocol/json.hpp"
 
 #ifndef PRODEN_VERSION
@@ -38,11 +39,12 @@ Attributes header_attributes(const FrameProvenance& frame, const PipelineResult&
       {s(header::low_confidence), frame.low_confidence ? "true" : "false"},
       {s(header::estimated_mse), mse.str()},
       {s(header::estimated_mse_source), s(run.estimated_error.source)},
+      {s(header::estimated_error), to_json(run.estimated_error).dump()},
   };
 }
 
 void write_frame(const std::string& path, const PipelineResult& run, const Attributes& attributes,
-                 bool layers, bool half) {
+                 bool layers, bool half, const AovAccumulator* aovs) {
   std::vector<io::NamedChannel> channels;
   io::add_layer(channels, "", run.result);
   if (layers) {
@@ -50,16 +52,15 @@ void write_frame(const std::string& path, const PipelineResult& run, const Attri
       io::add_layer(channels, std::string(name) + ".", *image);
     }
   }
+  const std::vector<AovChannel> aov_planes = aovs ? aovs->result() : std::vector<AovChannel>{};
+  io::add_aovs(channels, aov_planes);
   io::WriteOptions w;
   w.half = half;
   w.attributes = attributes;
+  if (aovs) {
+    w.attributes.insert(w.attributes.end(), aovs->attributes().begin(), aovs->attributes().end());
+  }
   io::write_image(path, run.result.width(), run.result.height(), channels, w);
-}
-
-void put_estimated_error(nlohmann::json& j, double mse, std::string_view source) {
-  j["estimated_mse"] = mse;
-  j["estimated_mse_source"] = source;
-  j["estimated_error"] = {{"mse", mse}, {"source", source}};
 }
 
 }  // namespace proden::protocol

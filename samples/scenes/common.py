@@ -29,11 +29,17 @@ def parse_args(argv=None):
     p.add_argument("--seed", type=int, required=True, help="Cycles seed (distinct per pass)")
     p.add_argument("--spp", type=int, required=True, help="samples per pixel of this pass")
     p.add_argument("--res", type=int, default=128, help="square resolution in pixels")
-    p.add_argument("--out", required=True, help="output path, must end in .exr")
+    p.add_argument("--out", help="output path, must end in .exr (required unless --save-blend)")
     p.add_argument("--half", action="store_true", help="write half float (16 bit) instead of 32 bit")
     p.add_argument("--threads", type=int, default=0, help="render threads (0 = all cores)")
+    p.add_argument("--save-blend", metavar="PATH",
+                   help="save the configured scene as a .blend instead of rendering (farm tests "
+                        "render it with deploy/blender/proden_pass.py)")
     a = p.parse_args(argv)
-    if not a.out.lower().endswith(".exr"):
+    if a.save_blend:
+        if a.out:
+            p.error("--save-blend and --out exclude each other")
+    elif not a.out or not a.out.lower().endswith(".exr"):
         p.error("--out must end in .exr")
     if a.spp < 1 or a.res < 1:
         p.error("--spp and --res must be >= 1")
@@ -253,4 +259,15 @@ def run(build_scene, clamp_indirect=0.0):
     scene = reset_scene()
     build_scene(scene, args)
     configure_render(scene, args, clamp_indirect=clamp_indirect)
+    save_or_render(scene, args)
+
+
+def save_or_render(scene, args):
+    """--save-blend: save the configured scene (farm tools render it); else render --out."""
+    if args.save_blend:
+        path = os.path.abspath(args.save_blend)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        bpy.ops.wm.save_as_mainfile(filepath=path, compress=False)
+        print("PRODEN_SAVED %s" % path, flush=True)
+        return
     render_pass(scene, args)

@@ -98,7 +98,7 @@ def main():
     cy.blur_glossy = 0.0
     cy.transmission_bounces = 16
     cy.max_bounces = 16
-    common.render_pass(scene, args)
+    common.save_or_render(scene, args)
 
 
 if __name__ == "__main__":

@@ -9,11 +9,14 @@
 
 #include "cli/progress.hpp"
 #include "proden/accumulator.hpp"
+#include "proden/aov.hpp"
 #include "proden/error.hpp"
+#include "proden/error_estimate.hpp"
 #include "proden/io/network_file.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/metrics.hpp"
 #include "proden/progressive.hpp"
+#include "proden/protocol/estimate.hpp"
 #include "proden/protocol/json.hpp"
 #include "proden/protocol/pipeline_spec.hpp"
 #include "proden/protocol/publish.hpp"
@@ -28,6 +31,7 @@ io::ReadOptions read_options(const InputOptions& in) {
   r.renderer = in.renderer;
   r.spp = in.spp;
   r.features = in.features;
+  r.view_layer = in.view_layer;
   return r;
 }
 
@@ -38,20 +42,33 @@ void report(const InputError& e) {
 // Accumulates passes into a frame; rejected files are reported and leave the frame untouched.
 struct Accumulated {
   FrameAccumulator frame;
+  AovAccumulator aovs;
+  io::PassInfo first;  // what the first accepted pass was read as
   int rejected = 0;
 };
 
 Accumulated accumulate(const std::vector<std::string>& files, const InputOptions& input,
-                       const std::string& what, bool progress) {
+                       const std::string& what, bool progress, bool aovs = false) {
   Accumulated a;
+  std::vector<AovChannel> pass_aovs;
   Progress bar(what, static_cast<int>(files.size()), progress);
   const auto options = read_options(input);
   for (const auto& f : files) {
     bar.step(f);
     try {
       io::PassInfo info;
-      const Pass pass = io::read_pass(f, options, &info);
+      const Pass pass = io::read_pass(f, options, &info, aovs ? &pass_aovs : nullptr);
       const AddResult r = a.frame.add(pass, f);
+      if (aovs) a.aovs.add(pass_aovs, pass.spp, info.aov_attributes);
+      if (a.frame.passes() == 1) {
+        a.first = info;
+        if (info.layers.size() > 1 && input.view_layer.empty()) {
+          std::string all;
+          for (const auto& l : info.layers) all += (all.empty() ? "" : ", ") + l;
+          spdlog::warn("{}: view layers {}; reading {} (the first; --view-layer chooses)", f, all,
+                       info.layer);
+        }
+      }
       if (r.dropped_pixels > 0) {
         spdlog::warn("{}: {} pixel(s) with NaN/Inf samples dropped from this pass", f,
                      r.dropped_pixels);
@@ -104,21 +121,28 @@ int run_denoise(const DenoiseOptions& o) {
   const auto t0 = Clock::now();
   std::optional<Pipeline> pipeline = committed_pipeline(o.pipeline);
   if (!pipeline) return kUsage;
-  Accumulated a = accumulate(o.passes, o.input, "accumulate", o.progress);
+  Accumulated a = accumulate(o.passes, o.input, "accumulate", o.progress, o.renderer_aovs);
   if (a.frame.empty()) {
     spdlog::error("no usable pass among {} file(s); nothing written", o.passes.size());
     return kBadInput;
   }
   const auto t1 = Clock::now();
   const FrameEstimate est = a.frame.estimate(pipeline->estimate_options());
-  const PipelineResult res = pipeline->execute(est);
+  ErrorContext ectx;
+  ectx.spp = a.frame.total_spp();
+  ectx.passes = a.frame.passes();
+  ectx.noise_scope =
+      a.first.renderer == io::Renderer::cycles ? NoiseScope::pixel : NoiseScope::frame;
+  const PipelineResult res = pipeline->execute(est, ectx);
   const auto t2 = Clock::now();
 
-  // Written exactly as the daemon publishes (protocol/publish.hpp); the layers with --aov.
+  // Written exactly as the daemon publishes (protocol/publish.hpp); the layers with --aov, the
+  // renderer's AOVs beside the result.
+  protocol::Attributes attributes =
+      protocol::header_attributes(protocol::provenance_of(a.frame, est), res);
+  if (!a.first.layer.empty()) attributes.emplace_back("proden:view_layer", a.first.layer);
   try {
-    protocol::write_frame(o.out, res,
-                          protocol::header_attributes(protocol::provenance_of(a.frame, est), res),
-                          o.aov, o.half);
+    protocol::write_frame(o.out, res, attributes, o.aov, o.half, &a.aovs);
   } catch (const std::exception& e) {
     spdlog::error("{}", e.what());
     return kInternalError;
@@ -155,7 +179,15 @@ int run_denoise(const DenoiseOptions& o) {
                      {"settings", protocol::settings_json(pipeline->options())}};
     if (res.mixer_weights != "none") j["pipeline"]["weights"] = res.mixer_weights;
     // The same keys, from the same numbers, as the daemon's frame status.
-    protocol::put_estimated_error(j, res.estimated_error.mse, res.estimated_error.source);
+    protocol::put_estimated_error(j, res.estimated_error);
+    j["renderer"] = io::to_string(a.first.renderer);
+    j["view_layer"] = a.first.layer.empty() ? json() : json(a.first.layer);
+    j["view_layers"] = a.first.layers;
+    json aovs = json::array();
+    for (const auto& [name, mode] : a.aovs.channels()) {
+      aovs.push_back({{"name", name}, {"mode", to_string(mode)}});
+    }
+    j["aovs"] = aovs;
     if (o.timings) j["timings"] = timings;
     std::cout << j.dump(2) << "\n";
   } else {
@@ -252,8 +284,14 @@ int run_info(const InfoOptions& o) {
         all.push_back(protocol::to_json(info));
       } else {
         std::printf("%s\n", f.c_str());
+        std::string layers;
+        for (const auto& l : info.layers) layers += (layers.empty() ? "" : ", ") + l;
         std::printf("  renderer   %s%s\n", std::string(io::to_string(info.renderer)).c_str(),
-                    info.layer.empty() ? "" : (" (view layer " + info.layer + ")").c_str());
+                    info.layer.empty()
+                        ? ""
+                        : (" (view layer " + info.layer +
+                           (info.layers.size() > 1 ? " of " + layers : std::string()) + ")")
+                              .c_str());
         std::printf("  format     %s, %d subimage(s), %s colour\n", info.format.c_str(),
                     info.subimages, info.pixel_type.c_str());
         std::printf("  size       %dx%d\n", info.width, info.height);
@@ -264,6 +302,9 @@ int run_info(const InfoOptions& o) {
         std::string names;
         for (const auto& c : info.channels) names += (names.empty() ? "" : ", ") + c;
         std::printf("  channels   %s\n", names.c_str());
+        std::string aovs;
+        for (const auto& c : info.aovs) aovs += (aovs.empty() ? "" : ", ") + c;
+        if (!aovs.empty()) std::printf("  aovs       %s\n", aovs.c_str());
       }
     } catch (const InputError& e) {
       report(e);

@@ -23,6 +23,7 @@ struct InputOptions {
   io::Renderer renderer = io::Renderer::automatic;
   std::optional<double> spp;
   bool features = true;
+  std::string view_layer;  // Cycles view layer ("" = the alphabetically first, said in the log)
 };
 
 struct DenoiseOptions {
@@ -37,6 +38,7 @@ struct DenoiseOptions {
   bool json = false;
   bool timings = false;  // print each stage's time (and in --json)
   bool progress = true;
+  bool renderer_aovs = true;  // accumulate the passes' AOVs and write them beside the result
 };
 
 struct EvalOptions {

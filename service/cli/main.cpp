@@ -9,6 +9,7 @@
 
 #include "cli/commands.hpp"
 #include "cli/options.hpp"
+#include "cli/wait.hpp"
 #include "daemon/serve.hpp"
 #include "proden/protocol/publish.hpp"
 
@@ -51,6 +52,21 @@ int main(int argc, char** argv) {
   i->add_option("files", inf.files, "Pass files")->required();
   i->add_flag("--json", inf.json, "JSON output");
 
+  cli::WaitOptions wt;
+  auto* w = app.add_subcommand(
+      "wait",
+      "Block until a frame on a running `proden serve` is converged or has a version > K "
+      "(exit 0; 4 timeout, 5 no such job, 6 daemon unreachable)");
+  w->add_option("--job", wt.job, "Job id")->required();
+  w->add_option("--frame", wt.frame, "Frame number")->required()->check(CLI::NonNegativeNumber);
+  w->add_option("--until", wt.until, "converged (default) or version>K")->capture_default_str();
+  w->add_option("--timeout", wt.timeout, "Seconds to wait (default: no limit)")
+      ->check(CLI::NonNegativeNumber);
+  w->add_option("--url", wt.url, "Daemon URL (default: $PRODEN_URL or http://127.0.0.1:8080)");
+  w->add_option("--token-file", wt.token_file, "Bearer token file");
+  w->add_flag("--json", wt.json, "Print the frame status as JSON");
+  w->add_flag("-q,--quiet", wt.quiet, "Print nothing; the exit code says");
+
   proden::daemon::add_serve_command(app);  // `proden serve`: runs the daemon and exits
 
   try {
@@ -73,6 +89,7 @@ int main(int argc, char** argv) {
     if (den.command->parsed()) return cli::run_denoise(den.options);
     if (e->parsed()) return cli::run_eval(ev);
     if (i->parsed()) return cli::run_info(inf);
+    if (w->parsed()) return cli::run_wait(wt);
   } catch (const std::exception& ex) {
     spdlog::critical("internal error: {}", ex.what());
     return cli::kInternalError;

@@ -12,6 +12,9 @@ void add_input_flags(CLI::App& cmd, InputOptions& in, std::string& renderer) {
       ->check(CLI::PositiveNumber);
   cmd.add_flag("!--no-features", in.features,
                "Ignore albedo/normal/depth even if the passes carry them");
+  cmd.add_option("--view-layer", in.view_layer,
+                 "Blender view layer to read from multilayer EXRs (default: the alphabetically "
+                 "first, said in the log)");
 }
 
 void PipelineFlags::add_to(CLI::App& cmd) {
@@ -79,6 +82,8 @@ void DenoiseCommand::add_to(CLI::App& app) {
   // The pipeline's options, spelt as the daemon's job JSON spells them (docs/api.md).
   pipeline.add_to(d);
   d.add_flag("--timings", den.timings, "Print the time of each stage");
+  d.add_flag("!--no-renderer-aovs", den.renderer_aovs,
+             "Do not accumulate the passes' AOVs (Combined.A, Depth, Mist, ...) beside the result");
 }
 
 void DenoiseCommand::finish() {

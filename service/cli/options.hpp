@@ -14,7 +14,7 @@
 
 namespace proden::cli {
 
-// --renderer, --spp and --no-features.
+// --renderer, --spp, --no-features and --view-layer.
 void add_input_flags(CLI::App& cmd, InputOptions& in, std::string& renderer);
 
 class PipelineFlags {

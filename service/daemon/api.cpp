@@ -270,12 +270,22 @@ Handler::Reply Api::upload(Incoming& in, const std::vector<std::string>& p) {
 
 Handler::Reply Api::image(const Request& req, const std::string& id, long frame,
                           const std::map<std::string, std::string>& query) {
-  const auto img = engine_.image(id, frame, PreviewCache::Request::from_query(query));
+  std::optional<std::uint64_t> version;  // ?version=K: an older version kept (docs/api.md)
+  if (query.count("version")) {
+    const std::string& v = query.at("version");
+    if (v.empty() || v.size() > 18 || !std::all_of(v.begin(), v.end(), ::isdigit) ||
+        std::stoull(v) == 0) {
+      throw ApiError(400, "invalid_parameter", "version must be a positive integer");
+    }
+    version = std::stoull(v);
+  }
+  const auto img = engine_.image(id, frame, PreviewCache::Request::from_query(query), version);
   Reply r;
   r.response = Response{http::status::ok, 11};
   r.response.set(http::field::server, "proden");
   r.response.set(http::field::cache_control, "no-cache");
   r.response.set(http::field::etag, img.etag);
+  r.response.set("X-Proden-Version", std::to_string(img.version));
   for (const auto& [k, v] : img.headers) r.response.set(k, v);
   const auto inm = req[http::field::if_none_match];
   if (!inm.empty() && std::string_view(inm.data(), inm.size()) == img.etag) {

@@ -11,6 +11,7 @@
 
 #include "daemon/frame_history.hpp"
 #include "daemon/processor.hpp"
+#include "daemon/versions.hpp"
 #include "proden/hash.hpp"
 #include "proden/io/pass_reader.hpp"
 
@@ -198,7 +199,10 @@ void Engine::evict() {
   if (resident.size() <= limit) return;
   std::sort(resident.begin(), resident.end(),
             [](const auto& a, const auto& b) { return a.first < b.first; });
-  for (std::size_t i = 0; i + limit < resident.size(); ++i) resident[i].second->acc.reset();
+  for (std::size_t i = 0; i + limit < resident.size(); ++i) {
+    resident[i].second->acc.reset();
+    resident[i].second->aovs.reset();
+  }
 }
 
 bool Engine::wait_idle(int timeout_ms) {
@@ -237,7 +241,9 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
     }
     fr.pending.clear();
     in.acc = std::move(fr.acc);
+    in.aovs = std::move(fr.aovs);
     fr.acc.reset();
+    fr.aovs.reset();
     in.record = fr.rec;
     in.has_state = fr.has_state;
     in.republish = fr.published_version < fr.rec.version;
@@ -343,6 +349,7 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
     case FrameRun::Result::done:
       fr.failures = 0;
       fr.acc = out.acc;
+      fr.aovs = out.aovs;
       fr.last_used = ++use_clock_;
       break;
   }
@@ -757,6 +764,16 @@ protocol::FrameStatus Engine::status(const Job& job, const Frame& fr) const {
   }
   s.pending =
       scheduler_->busy(job.spec.id, fr.rec.frame) || !fr.pending.empty() || !fr.retry.empty();
+  s.estimated_error = fr.rec.estimated_error;
+  s.converged = fr.rec.convergence.converged();
+  s.convergence = fr.rec.convergence.to_api(job.spec.target, job.spec.min_passes);
+  s.renderer = fr.rec.renderer;
+  s.view_layer = fr.rec.view_layer;
+  s.view_layers = fr.rec.view_layers;
+  s.aovs = fr.rec.aovs;
+  for (auto it = fr.rec.versions.rbegin(); it != fr.rec.versions.rend(); ++it) {
+    if (*it <= fr.published_version) s.versions.push_back(*it);
+  }
   return s;
 }
 
@@ -827,7 +844,8 @@ json Engine::quarantined(const std::string& id) const {
 }
 
 Engine::ImageFile Engine::image(const std::string& id, long frame,
-                                const PreviewCache::Request& request) {
+                                const PreviewCache::Request& request,
+                                std::optional<std::uint64_t> wanted) {
   PreviewCache::check_request(request.format, request.layer);
   fs::path exr;
   std::uint64_t version = 0;
@@ -838,11 +856,32 @@ Engine::ImageFile Engine::image(const std::string& id, long frame,
     if (it == job->frames.end() || it->second.published_version == 0) {
       throw ApiError(404, "not_found", "frame " + std::to_string(frame) + " has no version yet");
     }
-    version = it->second.published_version;
+    const Frame& fr = it->second;
+    version = fr.published_version;
     exr = output_base(job->spec, frame).string() + ".exr";
+    if (wanted && *wanted != version) {
+      const bool kept =
+          *wanted < version && std::find(fr.rec.versions.begin(), fr.rec.versions.end(), *wanted) !=
+                                   fr.rec.versions.end();
+      if (!kept) {
+        std::string have;
+        for (auto v = fr.rec.versions.rbegin(); v != fr.rec.versions.rend(); ++v) {
+          if (*v <= version) have += (have.empty() ? "" : ", ") + std::to_string(*v);
+        }
+        throw ApiError(404, "version_not_available",
+                       "frame " + std::to_string(frame) + " has no version " +
+                           std::to_string(*wanted) + " (kept: " + have + ")");
+      }
+      version = *wanted;
+      exr = version_file(job->spec, frame, version);
+    }
   }
   if (request.format == "exr" && request.layer.empty()) {  // the API opens it confined
-    return previews_.get(store_.cache_dir(id), exr, frame, version, request);
+    ImageFile f;
+    static_cast<PreviewCache::File&>(f) =
+        previews_.get(store_.cache_dir(id), exr, frame, version, request);
+    f.version = version;
+    return f;
   }
   // A rendition decodes the published EXR: open it beneath its root now, check its header within
   // the read limits, and let the decoder read exactly that descriptor (/proc/self/fd/N names it).
@@ -863,8 +902,11 @@ Engine::ImageFile Engine::image(const std::string& id, long frame,
   } catch (const std::exception& e) {
     throw ApiError(500, "internal", e.what());
   }
-  return previews_.get(store_.cache_dir(id), "/proc/self/fd/" + std::to_string(fd.get()), frame,
-                       version, request);
+  ImageFile f;
+  static_cast<PreviewCache::File&>(f) = previews_.get(
+      store_.cache_dir(id), "/proc/self/fd/" + std::to_string(fd.get()), frame, version, request);
+  f.version = version;
+  return f;
 }
 
 }  // namespace proden::daemon

@@ -18,6 +18,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <string>
 #include <vector>
@@ -81,10 +82,15 @@ class Engine {
                                 const std::string& pass, const std::filesystem::path& spooled);
   std::vector<protocol::FrameStatus> frames(const std::string& id) const;
   protocol::FrameStatus frame(const std::string& id, long frame) const;
-  using ImageFile = PreviewCache::File;
+  struct ImageFile : PreviewCache::File {
+    std::uint64_t version = 0;  // the version served
+  };
+  // The latest version, or `version` if given (404 version_not_available when its image is not
+  // kept, docs/api.md).
   ImageFile image(const std::string& id, long frame, const std::string& format,
                   const std::string& layer);
-  ImageFile image(const std::string& id, long frame, const PreviewCache::Request& request);
+  ImageFile image(const std::string& id, long frame, const PreviewCache::Request& request,
+                  std::optional<std::uint64_t> version = {});
   // The frame's published versions (FrameHistory); 404 for an unknown job or frame.
   nlohmann::json history(const std::string& id, long frame) const;
   // Every frame's published versions: [{"frame", "versions"}], in frame order.
@@ -111,6 +117,7 @@ class Engine {
     std::map<std::string, int> attempts;    // failed reads per pass
     int failures = 0;                       // consecutive failed runs (persist/publish)
     std::shared_ptr<FrameAccumulator> acc;  // resident state (LRU-bounded)
+    std::shared_ptr<AovAccumulator> aovs;   // its renderer AOVs (resident with acc)
     std::uint64_t last_used = 0;
     bool has(const std::string& pass) const {
       return ingested.count(pass) || pending.count(pass) || retry.count(pass) ||

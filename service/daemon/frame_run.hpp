@@ -4,8 +4,8 @@
 // file (the commit point), keep the accumulated uploads aside (until the next commit: they back
 // the last good state), publish the new version, record it as published and announce it. A crash
 // before the commit loses nothing (the passes are found again); after it, the version is
-// re-published on restart. A damaged state falls back to the last good one (an error event says
-// so); nothing non-finite is ever committed.
+// re-published on restart, as itself, before new passes make the next one. A damaged state falls
+// back to the last good one (an error event says so); nothing non-finite is ever committed.
 #pragma once
 
 #include <cstdint>
@@ -22,12 +22,13 @@
 #include "daemon/metrics.hpp"
 #include "daemon/quarantine.hpp"
 #include "proden/accumulator.hpp"
+#include "proden/aov.hpp"
 #include "proden/io/image_header.hpp"
 #include "proden/protocol/api.hpp"
 
 namespace proden::daemon {
 
-// <output.dir>/<name>_<frame, 4+ digits>: the published files are this plus .exr (and .png).
+// <output.dir>/<output.name expanded>: the published files are this plus .exr (and .png).
 std::filesystem::path output_base(const protocol::JobSpec& spec, long frame);
 
 // Natural order of pass names: numbers numerically, then names (the order passes accumulate in).
@@ -63,6 +64,7 @@ class FrameRun {
     bool has_state = false;
     bool republish = false;                 // the persisted version is not published yet
     std::shared_ptr<FrameAccumulator> acc;  // resident state, or null (loaded from the store)
+    std::shared_ptr<AovAccumulator> aovs;   // its renderer AOVs (resident with acc)
     std::vector<PendingPass> batch;         // passes to read, any order
     // Watched passes are read, and outputs written, beneath these roots (null: no confinement,
     // for tests of runs that read only stored uploads); reads are bounded by `limits`.
@@ -77,12 +79,19 @@ class FrameRun {
   struct Outcome {
     Result result = Result::done;
     std::shared_ptr<FrameAccumulator> acc;  // the state to keep resident (when done)
-    bool committed = false;                 // a new state was persisted
-    std::string error;                      // why it failed
+    std::shared_ptr<AovAccumulator> aovs;
+    bool committed = false;  // a new state was persisted
+    std::string error;       // why it failed
   };
   Outcome run(Input in);
 
  private:
+  Outcome commit_and_publish(const protocol::JobSpec& spec, long frame_no, FrameRecord& rec,
+                             const std::shared_ptr<FrameAccumulator>& acc,
+                             const std::shared_ptr<AovAccumulator>& aovs,
+                             const std::vector<protocol::PassIdentity>& accepted,
+                             const std::vector<PendingPass>& accepted_passes,
+                             std::uint64_t accepted_bytes, const Roots* roots);
   JobStore& store_;
   Metrics& metrics_;
   EventHub& events_;

@@ -33,6 +33,13 @@ json to_json(const FrameRecord& r) {
   json ingested = json::array();
   for (const auto& p : r.ingested) ingested.push_back(protocol::to_json(p));
   return {{"frame", r.frame},
+          {"estimated_error", r.estimated_error},
+          {"renderer", r.renderer},
+          {"view_layer", r.view_layer},
+          {"view_layers", r.view_layers},
+          {"aovs", r.aovs},
+          {"convergence", r.convergence.persist()},
+          {"versions", r.versions},
           {"version", r.version},
           {"updated", r.updated},
           {"estimated_mse", r.estimated_mse},
@@ -64,20 +71,33 @@ FrameRecord frame_record_from_json(const json& j) {
   r.low_confidence = j.at("low_confidence").get<bool>();
   r.digest = j.at("digest").get<std::uint64_t>();
   for (const auto& p : j.at("ingested")) r.ingested.push_back(protocol::pass_identity_from_json(p));
+  // Keys added by issue 13 (absent in older states).
+  r.estimated_error = j.value("estimated_error", json());
+  r.renderer = j.value("renderer", "");
+  r.view_layer = j.value("view_layer", "");
+  r.view_layers = j.value("view_layers", std::vector<std::string>{});
+  r.aovs = j.value("aovs", json::array());
+  r.convergence = Convergence::restore(j.value("convergence", json()));
+  r.versions = j.value("versions", std::vector<std::uint64_t>{});
   return r;
 }
 
 void save_frame_state(const fs::path& path, const FrameRecord& record,
-                      const FrameAccumulator& frame) {
+                      const FrameAccumulator& frame, const AovAccumulator& aovs) {
   for (const auto& [name, v] :
        {std::pair{"spp", record.spp}, {"estimated_mse", record.estimated_mse}}) {
     if (!std::isfinite(v)) {
       throw std::invalid_argument(path.string() + ": refusing to persist a non-finite " + name);
     }
   }
+  // The blob: the accumulator, then the renderer AOVs (issue 13); the record says where it splits.
+  std::vector<std::uint8_t> blob = frame.serialize();
+  json rec = to_json(record);
+  rec["accumulator_bytes"] = blob.size();
+  const std::vector<std::uint8_t> aov_blob = aovs.serialize();
+  blob.insert(blob.end(), aov_blob.begin(), aov_blob.end());
   // Invalid UTF-8 (a message quoting a file) is replaced, never a reason to fail the commit.
-  const std::string text = to_json(record).dump(-1, ' ', false, json::error_handler_t::replace);
-  const std::vector<std::uint8_t> blob = frame.serialize();
+  const std::string text = rec.dump(-1, ' ', false, json::error_handler_t::replace);
   std::vector<std::uint8_t> out(sizeof kMagic + 32 + text.size() + blob.size());
   std::size_t at = 0;
   auto put = [&out, &at](const void* p, std::size_t n) {
@@ -98,7 +118,7 @@ void save_frame_state(const fs::path& path, const FrameRecord& record,
 namespace {
 
 FrameRecord parse_record(std::span<const std::uint8_t> b, const fs::path& path,
-                         std::size_t* blob_offset) {
+                         std::size_t* blob_offset, std::size_t* accumulator_bytes = nullptr) {
   std::uint64_t n = 0;
   if (b.size() < sizeof kMagic + 8 || (std::memcmp(b.data(), kMagic, sizeof kMagic) != 0 &&
                                        std::memcmp(b.data(), kMagicV1, sizeof kMagic) != 0)) {
@@ -115,7 +135,13 @@ FrameRecord parse_record(std::span<const std::uint8_t> b, const fs::path& path,
     throw std::runtime_error(path.string() + ": corrupt frame state record");
   if (blob_offset) *blob_offset = sizeof kMagic + 16 + n;
   try {
-    return frame_record_from_json(json::parse(text));
+    const json j = json::parse(text);
+    if (accumulator_bytes) {
+      *accumulator_bytes = j.contains("accumulator_bytes")
+                               ? j.at("accumulator_bytes").get<std::size_t>()
+                               : b.size() - (sizeof kMagic + 16 + n);
+    }
+    return frame_record_from_json(j);
   } catch (const json::exception& e) {
     throw std::runtime_error(path.string() + ": bad frame state record: " + e.what());
   }
@@ -141,7 +167,8 @@ FrameRecord load_frame_record(const fs::path& path) {
   return parse_record(head, path, nullptr);
 }
 
-FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* record) {
+FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* record,
+                                        AovAccumulator* aovs) {
   auto bytes = read_file(path);
   if (!bytes) throw std::runtime_error(path.string() + ": cannot read");
   const std::span<const std::uint8_t> all(*bytes);
@@ -157,8 +184,8 @@ FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* recor
       throw std::runtime_error(path.string() + ": frame state checksum mismatch");
     }
   }
-  std::size_t offset = 0;
-  FrameRecord r = parse_record(all, path, &offset);
+  std::size_t offset = 0, acc_bytes = 0;
+  FrameRecord r = parse_record(all, path, &offset, &acc_bytes);
   if (std::memcmp(all.data(), kMagic, sizeof kMagic) == 0) {
     std::uint64_t m = 0;
     if (offset + 16 > all.size()) throw std::runtime_error(path.string() + ": truncated");
@@ -167,10 +194,13 @@ FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* recor
       throw std::runtime_error(path.string() + ": inconsistent frame state");
     }
     blob = all.subspan(offset + 8, m);
+    if (acc_bytes == all.size() - (offset)) acc_bytes = blob.size();  // no accumulator_bytes key
   } else {
     blob = all.subspan(offset);
   }
-  FrameAccumulator acc = FrameAccumulator::deserialize(blob);
+  if (acc_bytes > blob.size()) throw std::runtime_error(path.string() + ": truncated frame state");
+  FrameAccumulator acc = FrameAccumulator::deserialize(blob.first(acc_bytes));
+  if (aovs) *aovs = AovAccumulator::deserialize(blob.subspan(acc_bytes));
   if (acc.state_digest() != r.digest) {
     throw std::runtime_error(path.string() + ": accumulator does not match its record");
   }

@@ -3,7 +3,9 @@
 // is either in both or in neither: counted exactly once.
 //
 // File (version 2): "PRDNFRS2", u64 n, n bytes of JSON record, u64 hash(JSON), u64 m, m bytes of
-// accumulator blob (FrameAccumulator::serialize), u64 hash of every byte before it: one flipped
+// blob: the accumulator (FrameAccumulator::serialize) then the renderer AOVs
+// (AovAccumulator::serialize; the record's "accumulator_bytes" says where they start; records
+// without it have no AOVs), u64 hash of every byte before it: one flipped
 // byte anywhere is detected. The JSON part can be read without the rest (start-up). Version 1
 // files ("PRDNFRS1": no m, no whole-file hash; the blob carries its own checksum) still load.
 // Non-finite numbers are never written (JSON would turn them into null).
@@ -16,7 +18,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include "daemon/convergence.hpp"
 #include "proden/accumulator.hpp"
+#include "proden/aov.hpp"
 #include "proden/protocol/api.hpp"
 
 namespace proden::daemon {
@@ -34,16 +38,26 @@ struct FrameRecord {
   bool low_confidence = false;
   std::uint64_t digest = 0;
   std::vector<protocol::PassIdentity> ingested;
+  // Issue 13: the latest version's estimated_error object, what the passes were read as, the
+  // renderer AOVs accumulated, the convergence state and the versions kept.
+  nlohmann::json estimated_error;
+  std::string renderer, view_layer;
+  std::vector<std::string> view_layers;
+  nlohmann::json aovs = nlohmann::json::array();  // [{"name", "mode"}]
+  Convergence convergence;
+  std::vector<std::uint64_t> versions;  // the versions whose images are kept, ascending
 };
 
 nlohmann::json to_json(const FrameRecord& r);
 FrameRecord frame_record_from_json(const nlohmann::json& j);
 
 void save_frame_state(const std::filesystem::path& path, const FrameRecord& record,
-                      const FrameAccumulator& frame);
+                      const FrameAccumulator& frame, const AovAccumulator& aovs = {});
 // Reads only the JSON record (fast). Throws std::runtime_error on a corrupt file.
 FrameRecord load_frame_record(const std::filesystem::path& path);
-// Reads the record and the accumulator. Throws on a corrupt file.
-FrameAccumulator load_frame_accumulator(const std::filesystem::path& path, FrameRecord* record);
+// Reads the record and the accumulator (and, if `aovs`, the renderer AOVs). Throws on a corrupt
+// file.
+FrameAccumulator load_frame_accumulator(const std::filesystem::path& path, FrameRecord* record,
+                                        AovAccumulator* aovs = nullptr);
 
 }  // namespace proden::daemon

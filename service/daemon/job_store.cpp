@@ -200,8 +200,12 @@ std::optional<JobStore::LoadedJob> JobStore::load_job(
     f.record.frame = n;
     job.frames.push_back(std::move(f));
   }
-  // Output temp files of an interrupted publish.
-  remove_temp_files(job.spec.output.dir, "." + job.spec.name + "_");
+  // Output temp files of an interrupted publish (and of a kept version).
+  const std::string& tmpl = job.spec.output.name;
+  const std::string stem = tmpl.substr(0, std::min(tmpl.find('#'), tmpl.find("{frame}")));
+  remove_temp_files(job.spec.output.dir,
+                    "." + protocol::expand_output_name(stem, job.spec.name, 0));
+  remove_temp_files(fs::path(job.spec.output.dir) / "versions", ".");
   auto ingested = [&](long frame, const std::string& pass) {
     return std::any_of(job.frames.begin(), job.frames.end(), [&](const LoadedFrame& f) {
       return f.record.frame == frame && has_pass(f.record, pass);
@@ -242,7 +246,7 @@ std::optional<JobStore::LoadedJob> JobStore::load_job(
 // ---- frames ----------------------------------------------------------------------------------
 
 void JobStore::save_frame(const std::string& id, const FrameRecord& record,
-                          const FrameAccumulator& acc) {
+                          const FrameAccumulator& acc, const AovAccumulator& aovs) {
   const fs::path p = state_path(id, record.frame);
   fault_point("state", p);
   if (fs::exists(p)) {
@@ -255,7 +259,7 @@ void JobStore::save_frame(const std::string& id, const FrameRecord& record,
     fs::create_hard_link(p, tmp);
     fs::rename(tmp, prev_path(id, record.frame));
   }
-  save_frame_state(p, record, acc);
+  save_frame_state(p, record, acc, aovs);
 }
 
 JobStore::LoadedState JobStore::load_frame(const std::string& id, long frame) const {
@@ -264,7 +268,7 @@ JobStore::LoadedState JobStore::load_frame(const std::string& id, long frame) co
   std::string damage;
   if (fs::exists(cur) || !fs::exists(prev)) {
     try {
-      out.acc = load_frame_accumulator(cur, &out.record);
+      out.acc = load_frame_accumulator(cur, &out.record, &out.aovs);
       return out;
     } catch (const std::exception& e) {
       if (!fs::exists(prev)) throw;
@@ -272,7 +276,7 @@ JobStore::LoadedState JobStore::load_frame(const std::string& id, long frame) co
     }
   }
   try {
-    out.acc = load_frame_accumulator(prev, &out.record);
+    out.acc = load_frame_accumulator(prev, &out.record, &out.aovs);
   } catch (const std::exception& e) {
     if (damage.empty()) throw;
     throw std::runtime_error(damage + "; and the last good state: " + e.what());

@@ -83,11 +83,13 @@ class JobStore {
   // ---- frames ----
   // The commit point of a frame run: keeps the current state as <n>.prev, then writes the new
   // one atomically.
-  void save_frame(const std::string& id, const FrameRecord& record, const FrameAccumulator& acc);
+  void save_frame(const std::string& id, const FrameRecord& record, const FrameAccumulator& acc,
+                  const AovAccumulator& aovs = {});
   struct LoadedState {
     FrameAccumulator acc;
     FrameRecord record;
-    std::string damage;  // non-empty: <n>.state was damaged (moved aside); this is <n>.prev
+    AovAccumulator aovs;  // the renderer AOVs (issue 13)
+    std::string damage;   // non-empty: <n>.state was damaged (moved aside); this is <n>.prev
   };
   // Loads the frame's state, falling back to the last good one; throws when neither loads.
   LoadedState load_frame(const std::string& id, long frame) const;

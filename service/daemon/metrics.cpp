@@ -10,6 +10,10 @@ Metrics::Metrics()
   declare("proden_passes_ingested_total", "counter", "Passes accumulated into frames");
   declare("proden_ingested_bytes_total", "counter", "Bytes of pass files accumulated");
   declare("proden_frame_updates_total", "counter", "Frame versions published");
+  declare("proden_frames_converged_total", "counter",
+          "Frames that met their job's target with confidence (docs/api.md)");
+  declare("proden_frames_unconverged_total", "counter",
+          "Converged frames whose later version missed the target with confidence");
   declare("proden_uploads_total", "counter", "Passes received by HTTP upload");
   declare("proden_errors_total", "counter", "Errors by kind", "kind");
   declare("proden_http_requests_total", "counter", "HTTP requests answered, by status class",

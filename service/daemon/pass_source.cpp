@@ -11,7 +11,7 @@
 namespace proden::daemon {
 
 std::optional<SourcedPass> read_pending_pass(const PendingPass& p, const Roots* roots,
-                                             const io::ReadOptions& options) {
+                                             const io::ReadOptions& options, bool aovs) {
   const std::string name = p.path.string();
   FileError err = FileError::none;
   std::string why;
@@ -39,7 +39,8 @@ std::optional<SourcedPass> read_pending_pass(const PendingPass& p, const Roots* 
   out.size = file->size;
   out.mtime_ns = file->mtime_ns;
   out.content_hash = hash_bytes(std::span<const unsigned char>(file->bytes));
-  out.pass = io::read_pass(io::MemorySource(file->bytes), name, options);
+  out.pass = io::read_pass(io::MemorySource(file->bytes), name, options, &out.info,
+                           aovs ? &out.aovs : nullptr);
   return out;
 }
 

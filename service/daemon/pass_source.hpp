@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <vector>
 
 #include "daemon/files.hpp"
 #include "daemon/job_store.hpp"
@@ -19,6 +20,8 @@ struct SourcedPass {
   std::int64_t mtime_ns = 0;
   std::uint64_t content_hash = 0;  // hash_bytes of the file
   Pass pass;
+  io::PassInfo info;             // what the reader detected (renderer, view layers, AOVs)
+  std::vector<AovChannel> aovs;  // the renderer AOVs, when asked for (issue 13)
 };
 
 // nullopt: the file is gone, or (a watched file) its size or mtime changed since it was found,
@@ -27,6 +30,6 @@ struct SourcedPass {
 // `options.limits.max_file_bytes`, unreadable when it cannot be read, and whatever the pass reader
 // refuses. `roots` may be null only where no watched files exist (stored uploads).
 std::optional<SourcedPass> read_pending_pass(const PendingPass& p, const Roots* roots,
-                                             const io::ReadOptions& options);
+                                             const io::ReadOptions& options, bool aovs = false);
 
 }  // namespace proden::daemon

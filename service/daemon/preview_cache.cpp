@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 
 #include <nlohmann/json.hpp>
 
@@ -150,11 +151,12 @@ PreviewCache::File PreviewCache::get(const fs::path& cache_dir, const fs::path& 
   }
   fs::create_directories(cache_dir, ec);
   for (fs::directory_iterator it(cache_dir, ec), end; !ec && it != end; it.increment(ec)) {
-    // Older versions' renditions go; this version's other variants (sizes, exposures) stay.
+    // Older versions' renditions go; this version's other variants (sizes, exposures) and newer
+    // versions' stay (an older version asked for with ?version=K must not take the latest's).
     const std::string f = it->path().filename().string();
-    if (f.rfind(stem, 0) == 0 && f.rfind(stem + "v" + std::to_string(version) + ".", 0) != 0) {
-      fs::remove(it->path(), ec);
-    }
+    if (f.rfind(stem + "v", 0) != 0) continue;
+    const std::uint64_t v = std::strtoull(f.c_str() + stem.size() + 1, nullptr, 10);
+    if (v < version) fs::remove(it->path(), ec);
   }
   if (req.size) img = downscale(img, req.size);
   if (!png) {

@@ -47,9 +47,10 @@ EstimateOptions FrameProcessor::estimate_options(const protocol::PipelineSpec& s
 }
 
 ProcessedFrame FrameProcessor::process(const FrameAccumulator& frame, const FrameEstimate& estimate,
-                                       const protocol::PipelineSpec& spec) {
+                                       const protocol::PipelineSpec& spec,
+                                       const ErrorContext& error_context) {
   ProcessedFrame out;
-  out.run = pipeline_for(spec.options).execute(estimate);
+  out.run = pipeline_for(spec.options).execute(estimate, error_context);
   out.attributes = protocol::header_attributes(protocol::provenance_of(frame, estimate), out.run);
   out.estimated_mse = out.run.estimated_error.mse;
   out.estimated_mse_source = std::string(out.run.estimated_error.source);
@@ -66,9 +67,14 @@ ProcessedFrame FrameProcessor::process(const FrameAccumulator& frame, const Fram
 }
 
 std::vector<std::string> FrameProcessor::publish(const ProcessedFrame& frame,
-                                                 const std::string& base, bool png) {
+                                                 const std::string& base, bool png,
+                                                 const protocol::Attributes& extra,
+                                                 const AovAccumulator* aovs) {
   std::vector<std::string> written;
-  protocol::write_frame(base + ".exr", frame.run, frame.attributes, /*layers=*/true);
+  protocol::Attributes attributes = frame.attributes;
+  attributes.insert(attributes.end(), extra.begin(), extra.end());
+  protocol::write_frame(base + ".exr", frame.run, attributes, /*layers=*/true, /*half=*/false,
+                        aovs);
   written.push_back(base + ".exr");
   if (png) {
     write_png_preview(base + ".png", frame.run.result);

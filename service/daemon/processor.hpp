@@ -9,6 +9,8 @@
 #include <vector>
 
 #include "proden/accumulator.hpp"
+#include "proden/aov.hpp"
+#include "proden/error_estimate.hpp"
 #include "proden/image.hpp"
 #include "proden/progressive.hpp"
 #include "proden/protocol/api.hpp"
@@ -32,13 +34,17 @@ class FrameProcessor {
   static bool supports(const protocol::PipelineSpec& spec, std::string& why);
   // What the job's pipeline needs of the accumulated frame (FrameAccumulator::estimate).
   static EstimateOptions estimate_options(const protocol::PipelineSpec& spec);
+  // `error_context`: what the error estimate needs besides the images (docs/error_estimate.md).
   static ProcessedFrame process(const FrameAccumulator& frame, const FrameEstimate& estimate,
-                                const protocol::PipelineSpec& spec);
+                                const protocol::PipelineSpec& spec,
+                                const ErrorContext& error_context);
 
-  // Writes <base>.exr (R,G,B + every layer as <layer>.R/G/B, with the header fields) and, if png,
-  // <base>.png (tone-mapped result), atomically. Returns the paths written.
+  // Writes <base>.exr (R,G,B + every layer as <layer>.R/G/B + the renderer AOVs, with the header
+  // fields plus `extra`) and, if png, <base>.png (tone-mapped result), atomically. Returns the
+  // paths written, the EXR first.
   static std::vector<std::string> publish(const ProcessedFrame& frame, const std::string& base,
-                                          bool png);
+                                          bool png, const protocol::Attributes& extra = {},
+                                          const AovAccumulator* aovs = nullptr);
 };
 
 // Names of layers a client may request (proden::layer_names()), and them as a list for messages.

@@ -4,6 +4,7 @@
 #include <fstream>
 
 #include "daemon/files.hpp"
+#include "daemon/frame_history.hpp"
 #include "daemon/frame_run.hpp"
 #include "daemon_support.hpp"
 
@@ -200,4 +201,64 @@ TEST_CASE("FrameRun: a persisted but unpublished version is published again",
   CHECK(r.committed.size() == 1);  // nothing new committed
   CHECK(r.published == std::vector<std::uint64_t>{1, 1});
   CHECK(fs::exists(output_base(r.spec, 1).string() + ".exr"));
+}
+
+TEST_CASE("FrameRun: an unpublished version is published as itself before new passes",
+          "[daemon][frame_run]") {
+  // The soak's finding (bench/soak.py): killed between commit and publish, the daemon restarted
+  // with new passes waiting merged them into the next version, so the committed version was
+  // never published, recorded in the history or announced.
+  Rig r;
+  r.fault = [](const std::string& op, const fs::path&) {
+    if (op == "publish") throw std::runtime_error("killed before the publish (simulated)");
+  };
+  const auto a = test::write_pass(r.watched("a"), "a", 1);
+  const auto first = r.run({a});
+  REQUIRE(first.result == FrameRun::Result::failed);
+  REQUIRE(first.committed);
+  REQUIRE(r.published.empty());
+  r.fault = nullptr;
+  const auto b = test::write_pass(r.watched("b"), "b", 2);
+  const auto out = r.run({b}, r.committed.at(0), true, true);
+  REQUIRE(out.result == FrameRun::Result::done);
+  CHECK(r.published == std::vector<std::uint64_t>{1, 2});
+  REQUIRE(r.committed.size() == 2);
+  CHECK(r.committed[1].version == 2);
+  CHECK(r.committed[1].passes == 2);
+  const auto frames = r.events->of_type("frame");
+  REQUIRE(frames.size() == 2);
+  CHECK(frames[0].data["version"] == 1);
+  CHECK(frames[0].data["passes"] == 1);
+  CHECK(frames[0].data["new_passes"] == 0);
+  CHECK(frames[1].data["version"] == 2);
+  CHECK(frames[1].data["new_passes"] == 1);
+  const auto history = FrameHistory::load(r.store.history_path("j1", 1));
+  REQUIRE(history.size() == 2);
+  CHECK(history[0]["version"] == 1);
+  CHECK(history[1]["version"] == 2);
+}
+
+TEST_CASE("FrameRun: a version is in the history before it is recorded as published",
+          "[daemon][frame_run]") {
+  // Killed after the outputs are written but before the version is recorded as published, the
+  // version is published again on restart; its history line must not depend on the second try
+  // (the soak's clients resume from the history what an event lost with the process missed).
+  Rig r;
+  r.fault = [](const std::string& op, const fs::path&) {
+    if (op == "published") throw std::runtime_error("killed before .pub (simulated)");
+  };
+  const auto a = test::write_pass(r.watched("a"), "a", 1);
+  REQUIRE(r.run({a}).result == FrameRun::Result::failed);
+  REQUIRE(r.published.empty());
+  auto history = FrameHistory::load(r.store.history_path("j1", 1));
+  REQUIRE(history.size() == 1);
+  CHECK(history[0]["version"] == 1);
+  r.fault = nullptr;
+  REQUIRE(r.run({}, r.committed.at(0), true, true).result == FrameRun::Result::done);
+  CHECK(r.published == std::vector<std::uint64_t>{1});
+  history = FrameHistory::load(r.store.history_path("j1", 1));
+  CHECK(history.size() == 1);  // one line per version
+  const auto frames = r.events->of_type("frame");
+  REQUIRE(frames.size() == 1);
+  CHECK(frames[0].data["version"] == 1);
 }

@@ -36,7 +36,7 @@ def wait_until(pred, timeout=20.0, interval=0.05, what="condition"):
 class Daemon:
     """One `proden serve` process with its own state dir under `root`."""
 
-    def __init__(self, root, state=None, token=None, config=None, extra=()):
+    def __init__(self, root, state=None, token=None, config=None, extra=(), port=0):
         self.root = root
         self.state = state or os.path.join(root, "state")
         self.allowed = os.path.join(root, "allowed")
@@ -53,13 +53,16 @@ class Daemon:
         self.proc = None
         self.url = None
         self.port = None
+        self.want_port = port  # 0 = ephemeral; a restart may reuse the last one (start(port=...))
         self.log = os.path.join(root, "daemon.log")
 
-    def start(self, timeout=20.0):
+    def start(self, timeout=20.0, port=None):
+        if port is not None:
+            self.want_port = port
         cfg_path = os.path.join(self.root, "config.json")
         with open(cfg_path, "w") as f:
             json.dump(self.config, f)
-        args = [BINARY, "serve", "--port", "0", "--state-dir", self.state,
+        args = [BINARY, "serve", "--port", str(self.want_port), "--state-dir", self.state,
                 "--allow-root", self.allowed, "--config", cfg_path] + self.extra
         if self.token:
             tf = os.path.join(self.root, "token")

@@ -7,13 +7,18 @@ import zlib
 LIVEZ_DEADLINE = 2.0  # seconds; generous: a healthy daemon answers in milliseconds
 
 
-def vm_hwm_mib(d):
-    """Peak resident memory of the daemon process so far (MiB)."""
-    with open("/proc/%d/status" % d.proc.pid) as f:
+def proc_status_mib(pid, field):
+    """A memory field of /proc/<pid>/status (VmRSS: resident now, VmHWM: peak so far), in MiB."""
+    with open("/proc/%d/status" % pid) as f:
         for line in f:
-            if line.startswith("VmHWM:"):
+            if line.startswith(field + ":"):
                 return int(line.split()[1]) / 1024.0
     return 0.0
+
+
+def vm_hwm_mib(d):
+    """Peak resident memory of the daemon process so far (MiB)."""
+    return proc_status_mib(d.proc.pid, "VmHWM")
 
 
 def _attr(name, typ, value, declared=None):

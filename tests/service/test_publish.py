@@ -110,8 +110,9 @@ class PublishTest(unittest.TestCase):
         # The header's estimated error is the frame status's, to the last bit.
         self.assertEqual(float(hdr["proden:estimated_mse"]), status["estimated_mse"])
         self.assertEqual(hdr["proden:estimated_mse_source"], status["estimated_mse_source"])
-        self.assertEqual(status["estimated_error"],
-                         {"mse": status["estimated_mse"], "source": "variance+sure"})
+        self.assertEqual(status["estimated_error"]["mse"], status["estimated_mse"])
+        self.assertEqual(status["estimated_error"]["source"], "variance+sure")
+        self.assertEqual(json.loads(hdr["proden:estimated_error"]), status["estimated_error"])
         s, h, png = self.d.request(
             "GET", "/api/v1/jobs/%s/frames/1/image?format=png&layer=mixvariance" % jid)
         self.assertEqual((s, png[:8]), (200, b"\x89PNG\r\n\x1a\n"))

@@ -154,17 +154,18 @@ TEST_CASE("the fine t-test rejects a spot smeared within the authors' window", "
   const Rect px{cx, cy, cx + 1, cy + 1};
   Buffer coarse(px, 3), fine(px, 3);
   const Image passes(W, H, 1, 16.0f);
+  const VarianceOrigin origin{view_of(passes)};
   t_rescale(view_of(x), view_of(var), view_of(z), view_of(alpha), W, H, px, defaults.ttest, coarse,
-            view_of(passes));
+            origin);
   t_rescale(view_of(x), view_of(var), view_of(z), view_of(alpha), W, H, px,
-            defaults.ttest_fine_params, fine, view_of(passes));
+            defaults.ttest_fine_params, fine, origin);
   INFO("authors' keep " << coarse.at(cx, cy, 0) << ", fine keep " << fine.at(cx, cy, 0));
   CHECK(coarse.at(cx, cy, 0) > 0.5f);  // the premise: the authors' test lets it through
   CHECK(fine.at(cx, cy, 0) < 1e-3f);
   // And an unbiased z (= x) passes both.
   Buffer same(px, 3);
   t_rescale(view_of(x), view_of(var), view_of(x), view_of(alpha), W, H, px,
-            defaults.ttest_fine_params, same, view_of(passes));
+            defaults.ttest_fine_params, same, origin);
   CHECK(same.at(cx, cy, 0) > 0.99f);
 }
 

@@ -1,4 +1,5 @@
-// Image error metrics over linear RGB against a reference (design.md §3): RMSE, relMSE, SMAPE.
+// Image error metrics over linear RGB against a reference (docs/pipeline.md, "Error
+// metrics"): RMSE, relMSE, SMAPE.
 #pragma once
 
 #include <cstddef>

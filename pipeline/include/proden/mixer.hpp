@@ -33,7 +33,8 @@ enum class ClosedFormRule {
   // lemma (E[(x - mu)(y - x)] = div - var); reduces to inverse-error weighting when y is
   // independent of x. S is a weighted window sum (see WindowWeight).
   stein,
-  // alpha = S(var) / (S(var) + max(S(SURE), 0)): inverse-error weighting (design.md baseline).
+  // alpha = S(var) / (S(var) + max(S(SURE), 0)): inverse-error weighting (Firmino et al. 2022's
+  // closed-form baseline; docs/pipeline.md).
   inverse_error,
 };
 

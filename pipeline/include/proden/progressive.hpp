@@ -21,6 +21,7 @@
 #include "proden/denoise/gaussian.hpp"
 #include "proden/denoise/nfor.hpp"
 #include "proden/denoise/nlmeans.hpp"
+#include "proden/error_estimate.hpp"
 #include "proden/mixer.hpp"
 #include "proden/network/builtin.hpp"
 #include "proden/sure.hpp"
@@ -142,11 +143,9 @@ inline constexpr std::string_view variance = "variance";
 inline constexpr std::string_view variance_sure = "variance+sure";
 }  // namespace error_source
 
-// The pipeline's own estimate of the result's mean squared error (no reference).
-struct EstimatedError {
-  double mse = 0.0;
-  std::string_view source = error_source::variance;
-};
+// The pipeline's own estimate of the result's error (no reference): proden::EstimatedError of
+// error_estimate.hpp (MSE, relMSE, equivalent spp, each with an interval), computed by
+// estimate_error() at the end of Pipeline::execute.
 
 // CPU seconds per stage (thread CPU time, summed over tiles: with N busy threads they add up to
 // about N x wall; a whole-frame denoiser's stages count their wall time), and the wall time of the
@@ -164,9 +163,10 @@ struct PipelineResult {
   Image alpha;         // alpha' (after the t-test, or the mixer's alpha with t_test off)
   Image sure;          // SURE of y
   Image mix_variance;  // Var[x] as the mixer and t-test read it (pooled over (2r+1)^2)
-  // Mean over pixels and RGB of the result's SURE, (1-a) Var[x] + a SURE(y) - a (1-a) (y-x)^2
-  // (it keeps the x-y covariance that (1-a)^2 Var[x] + a^2 SURE drops), floored at the mean of
-  // (1-a)^2 Var[x] (MSE(z) >= that when div >= 0); the mean of Var[x] when nothing was denoised.
+  // The estimated error (docs/error_estimate.md). Its mse is the mean over pixels and RGB of the
+  // result's SURE, (1-a) Var[x] + a SURE(y) - a (1-a) (y-x)^2 (it keeps the x-y covariance that
+  // (1-a)^2 Var[x] + a^2 SURE drops), floored at the mean of (1-a)^2 Var[x] (MSE(z) >= that when
+  // div >= 0); the mean of Var[x] when nothing was denoised.
   EstimatedError estimated_error;
   StageTimings timings;
   std::string denoiser, mixer, divergence;  // what ran ("none" for stages that did not)
@@ -208,7 +208,9 @@ class Pipeline {
   // Runs the pipeline on one frame. Throws std::logic_error if not committed since the options
   // last changed, std::invalid_argument if the frame has no RGB mean and variance. Not reentrant:
   // one execute() at a time per Pipeline (it runs tiles in parallel itself).
-  PipelineResult execute(const FrameEstimate& frame);
+  // `error` says what the error estimate needs besides the images (spp, passes, the renderer's
+  // noise scope; the variance source comes from `frame`). Without it (spp 0) equivalent_spp is 0.
+  PipelineResult execute(const FrameEstimate& frame, const ErrorContext& error = {});
 
   // After commit(): the built stages (null when not used: denoiser "none"), the halo, the names.
   const Denoiser* denoiser() const { return denoiser_.get(); }

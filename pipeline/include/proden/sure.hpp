@@ -1,4 +1,5 @@
-// Stein's unbiased risk estimate of a denoised image's per-pixel squared error (design.md §2.2):
+// Stein's unbiased risk estimate of a denoised image's per-pixel squared error (Stein 1981;
+// Firmino et al. 2022; docs/pipeline.md, "Stages and choices"):
 // SURE_p = (y_p - x_p)^2 - var_p + 2 div_p, with div_p = dy_p/dx_p * var_p. The divergence comes
 // from the denoiser's Jacobian diagonal when it offers one (free), else from Monte-Carlo probes
 // (K extra denoiser runs: div_p ~ 1/(eps K) sum_k b_kp (F(x + eps b_k)_p - F(x)_p), b ~ N(0, var)).

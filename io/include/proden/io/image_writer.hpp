@@ -10,6 +10,7 @@
 #include <utility>
 #include <vector>
 
+#include "proden/aov.hpp"
 #include "proden/image.hpp"
 
 namespace proden::io {
@@ -57,5 +58,9 @@ class OutputDirectory {
 // Appends `prefix + suffix[c]` channels for each plane of `image` ("render." + "R", ...).
 void add_layer(std::vector<NamedChannel>& out, const std::string& prefix, const Image& image,
                std::string_view suffixes = "RGB");
+
+// Appends renderer AOVs (AovAccumulator::result(); they must outlive `out`) under their own
+// names ("A", "Depth.Z", "CryptoObject00.r", ...), beside the result (docs/api.md).
+void add_aovs(std::vector<NamedChannel>& out, const std::vector<AovChannel>& aovs);
 
 }  // namespace proden::io

@@ -11,6 +11,7 @@
 #include <utility>
 #include <vector>
 
+#include "proden/aov.hpp"
 #include "proden/io/image_header.hpp"
 #include "proden/io/profile.hpp"
 #include "proden/pass.hpp"
@@ -22,6 +23,7 @@ struct ReadOptions {
   std::optional<double> spp;  // used when the file does not carry its sample count
   bool features = true;       // load albedo/normal/depth when present
   bool variance = true;       // load renderer variance when present
+  std::string view_layer;     // Cycles view layer to read ("" = the alphabetically first)
   ReadLimits limits;          // bounds checked before decoding (CLI defaults: generous)
   // The frame's size when it is known (its first pass, or the job's declaration): a pass of any
   // other size is refused from its header, before its pixels are decoded.
@@ -37,7 +39,8 @@ struct PassInfo {
   std::string path;
   std::string format;  // OIIO format name: "openexr" or "hdr"
   Renderer renderer = Renderer::generic;
-  std::string layer;  // Blender view layer, if any
+  std::string layer;                // Blender view layer read, if any
+  std::vector<std::string> layers;  // every Cycles view layer in the file, sorted
   int width = 0;
   int height = 0;
   int subimages = 1;
@@ -47,7 +50,9 @@ struct PassInfo {
   SppSource spp_source = SppSource::assumed;
   Layout layout;                      // which features were found (and loaded)
   std::optional<double> render_time;  // seconds, if the header says
-  std::uint64_t read_bytes = 0;       // estimated peak memory of reading the pass
+  std::vector<std::string> aovs;      // renderer AOVs as they would be written (aov_sources)
+  std::vector<std::pair<std::string, std::string>> aov_attributes;  // e.g. Cryptomatte's
+  std::uint64_t read_bytes = 0;  // estimated peak memory of reading the pass
   std::string to_string() const;
 };
 
@@ -69,9 +74,11 @@ PassInfo probe_pass(const ByteSource& source, const std::string& name,
                     const ReadOptions& options = {});
 
 // Reads and validates the whole file. `name` names the source in errors and in PassInfo::path.
-Pass read_pass(const std::string& path, const ReadOptions& options = {}, PassInfo* info = nullptr);
+// With `aovs`, also its renderer AOVs (PassInfo::aovs).
+Pass read_pass(const std::string& path, const ReadOptions& options = {}, PassInfo* info = nullptr,
+               std::vector<AovChannel>* aovs = nullptr);
 Pass read_pass(const ByteSource& source, const std::string& name, const ReadOptions& options = {},
-               PassInfo* info = nullptr);
+               PassInfo* info = nullptr, std::vector<AovChannel>* aovs = nullptr);
 
 // Reads the RGB colour of any image proden reads or writes (passes, references, outputs).
 Image read_rgb(const std::string& path, const ReadOptions& options = {});

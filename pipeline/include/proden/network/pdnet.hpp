@@ -1,4 +1,4 @@
-// The learned mixing network (Firmino et al. 2022, design.md §2.3; docs/mixer_network.md):
+// The learned mixing network (Firmino et al. 2022; docs/mixer_network.md):
 // PdNet runs the CNN on one region as an independent image; NetworkMixer plugs it into the
 // pipeline's tiles with a halo of its receptive radius (7), so tiles equal the whole image.
 #pragma once

@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "proden/progressive.hpp"
+#include "proden/protocol/estimate.hpp"
 
 namespace proden::protocol {
 
@@ -36,6 +37,10 @@ struct WatchSpec {
 struct OutputSpec {
   std::string dir;
   bool png = false;  // also write a tone-mapped PNG preview (EXR is always written)
+  // Base name of the published files: {job}, {frame} (unpadded) or a run of # (zero-padded).
+  std::string name = "{job}_####";
+  int history = 8;   // versions kept per frame besides the latest (0-1000)
+  bool aovs = true;  // accumulate and write the renderer's AOVs beside the result
 };
 
 // A job's `pipeline` object: the keys the client set, as sent (validated; echoed back with
@@ -59,6 +64,9 @@ struct JobSpec {
   std::optional<double> spp;       // samples per pass when the files do not say
   PipelineSpec pipeline;
   OutputSpec output;
+  std::string view_layer;        // Blender view layer to read ("" = the alphabetically first)
+  std::optional<Target> target;  // when a frame is good enough
+  int min_passes = 2;            // passes before a frame may converge
   bool paused = false;
   std::string created;  // RFC 3339 UTC
 };
@@ -110,8 +118,23 @@ struct FrameStatus {
   std::vector<nlohmann::json> quarantined;
   std::vector<std::string> outputs;  // published file paths
   bool pending = false;              // passes waiting to be processed
+  // Issue 13 (docs/api.md): the full estimated_error object of the latest version (null before
+  // the first), the convergence state, what was read, the versions that can be fetched.
+  nlohmann::json estimated_error;
+  bool converged = false;
+  nlohmann::json convergence;
+  std::string renderer, view_layer;
+  std::vector<std::string> view_layers;
+  nlohmann::json aovs = nlohmann::json::array();
+  std::vector<std::uint64_t> versions;  // newest first
 };
 nlohmann::json to_json(const FrameStatus& f, bool detail);
+
+// The published files' base name (no directory, no extension) of `frame` for output.name
+// `name_template` and job `job`: {job}, {frame}, and Blender's # padding (at least that many
+// digits).
+std::string expand_output_name(const std::string& name_template, const std::string& job,
+                               long frame);
 
 // RFC 3339 UTC timestamp with milliseconds for `now`.
 std::string now_rfc3339();

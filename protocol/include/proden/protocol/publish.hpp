@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "proden/accumulator.hpp"
+#include "proden/aov.hpp"
 #include "proden/progressive.hpp"
 
 namespace proden::protocol {
@@ -29,6 +30,7 @@ inline constexpr std::string_view variance_source = "proden:variance_source";
 inline constexpr std::string_view low_confidence = "proden:low_confidence";
 inline constexpr std::string_view estimated_mse = "proden:estimated_mse";
 inline constexpr std::string_view estimated_mse_source = "proden:estimated_mse_source";
+inline constexpr std::string_view estimated_error = "proden:estimated_error";  // the object, JSON
 }  // namespace header
 
 using Attributes = std::vector<std::pair<std::string, std::string>>;
@@ -48,14 +50,15 @@ std::string software();
 // Every header field above, in that order, for this frame and run.
 Attributes header_attributes(const FrameProvenance& frame, const PipelineResult& run);
 
-// Writes `path` atomically: R,G,B = the result and, with `layers`, every layer of the run, with
-// `attributes` in the header; `half` stores 16-bit halves. Throws std::runtime_error naming the
-// path.
+// Writes `path` atomically: R,G,B = the result and, with `layers`, every layer of the run, and the
+// renderer AOVs `aovs` accumulated beside it (their own header entries, e.g. Cryptomatte's,
+// added), with `attributes` in the header; `half` stores 16-bit halves. Throws
+// std::runtime_error naming the path.
 void write_frame(const std::string& path, const PipelineResult& run, const Attributes& attributes,
-                 bool layers, bool half = false);
+                 bool layers, bool half = false, const AovAccumulator* aovs = nullptr);
 
 // The estimated error as the daemon's frame status and `proden denoise --json` report it:
-// "estimated_mse", "estimated_mse_source" and "estimated_error": {"mse", "source"}.
-void put_estimated_error(nlohmann::json& j, double mse, std::string_view source);
+// protocol/estimate.hpp's put_estimated_error ("estimated_mse", "estimated_mse_source" and the
+// "estimated_error" object).
 
 }  // namespace proden::protocol

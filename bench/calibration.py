@@ -1,0 +1,153 @@
+#!/usr/bin/python3
+"""Calibration of the published estimated error (issue 13, docs/error_estimate.md): est/true relMSE
+per scene, level, denoiser and input, on the evaluation renders (bench/render_eval_set.sh).
+
+For every scene and level L >= 8 spp (EVALDATA/<scene>/spp<L>/pass_0k.exr, 8 passes of L/8 spp)
+and every denoiser, `proden denoise --json --aov` runs on
+  - all 8 passes ("8p"), with the features;
+  - the first 2 and the first 4 passes ("2p", "4p": spp 2L/8, 4L/8), with the features;
+  - all 8 passes with --no-features ("hdr": HDR only).
+est = estimated_error.relmse (with its 95 % interval); true = the result's relMSE against the
+reference (EVALDATA/<scene>/reference, 8 x 512 spp: its mean), with the reference's own noise
+(its variance of the mean, from its 8 passes) taken out:
+    true = mean_j ((z_j - ref_j)^2 - Var[ref_j]) / (ref_j^2 + 0.01)      (z: the result, RGB)
+The bar (issue 13): est/true in [0.67, 1.5] for every cell from 8 spp; "covered" = the true value
+lies in [relmse_low, relmse_high].
+
+    nice bench/calibration.py --proden build/proden --evaldata /work/evaldata \\
+        --denoisers none nlmeans --out bench/results/calibration
+
+Writes <out>.json (every cell) and <out>.md (the table included in bench/RESULTS.md).
+"""
+import argparse
+import glob
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+import OpenImageIO as oiio
+
+SCENES = ["cornell", "glass", "interior", "textured_dof"]
+LEVELS = [8, 16, 32, 64, 128, 256, 512, 1024]
+CONFIGS = {"8p": (8, False), "4p": (4, False), "2p": (2, False), "hdr": (8, True)}
+BAR = (0.67, 1.5)
+
+
+def read_rgb(path, prefix=""):
+    img = oiio.ImageBuf(path)
+    if img.has_error:
+        sys.exit("cannot read %s: %s" % (path, img.geterror()))
+    names = list(img.spec().channelnames)
+    px = img.get_pixels(oiio.FLOAT)
+    return np.stack([px[:, :, names.index(prefix + c)] for c in "RGB"], axis=-1).astype(np.float64)
+
+
+def denoise(proden, passes, out, denoiser, no_features):
+    cmd = [proden, "denoise", "-q", "--json", "--aov", "--denoiser", denoiser, "--out", out]
+    if no_features:
+        cmd.append("--no-features")
+    r = subprocess.run(cmd + passes, check=True, capture_output=True, text=True)
+    return json.loads(r.stdout)
+
+
+def reference(proden, scene_dir, tmp):
+    """The reference's mean and variance of the mean (proden's own accumulation, denoiser none)."""
+    out = os.path.join(tmp, "ref_%s.exr" % os.path.basename(scene_dir.rstrip("/")))
+    denoise(proden, sorted(glob.glob(os.path.join(scene_dir, "reference", "pass_*.exr"))), out,
+            "none", False)
+    return read_rgb(out, "render."), read_rgb(out, "variance.")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--proden", default="build/proden")
+    ap.add_argument("--evaldata", default="/work/evaldata")
+    ap.add_argument("--scenes", nargs="+", default=SCENES)
+    ap.add_argument("--levels", nargs="+", type=int, default=LEVELS)
+    ap.add_argument("--denoisers", nargs="+", default=["none", "nlmeans"])
+    ap.add_argument("--configs", nargs="+", default=list(CONFIGS))
+    ap.add_argument("--out", default="bench/results/calibration")
+    a = ap.parse_args()
+    cells = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for scene in a.scenes:
+            sdir = os.path.join(a.evaldata, scene)
+            ref, ref_var = reference(a.proden, sdir, tmp)
+            w = 1.0 / (ref * ref + 0.01)
+            for level in a.levels:
+                passes = sorted(glob.glob(os.path.join(sdir, "spp%d" % level, "pass_*.exr")))
+                for den in a.denoisers:
+                    for cfg in a.configs:
+                        k, nofeat = CONFIGS[cfg]
+                        # A new name per cell: OIIO's image cache can serve a file rewritten
+                        # within the same second from its old contents.
+                        out = os.path.join(tmp, "z_%s_%d_%s_%s.exr" % (scene, level, den, cfg))
+                        j = denoise(a.proden, passes[:k], out, den, nofeat)
+                        z = read_rgb(out)
+                        sq = (z - ref) ** 2 - ref_var
+                        true = float(np.mean(sq * w))
+                        true_mse = float(np.mean(sq))
+                        e = j["estimated_error"]
+                        c = {"scene": scene, "level": level, "config": cfg, "passes": k,
+                             "spp": j["estimated_error"]["spp"], "denoiser": den,
+                             "est": e["relmse"], "low": e["relmse_low"], "high": e["relmse_high"],
+                             "true": true, "est_mse": e["mse"], "true_mse": true_mse,
+                             "calibration": e.get("calibration"),
+                             "consistent": e.get("consistent")}
+                        c["ratio"] = c["est"] / true if true > 0 else math.inf
+                        c["covered"] = (c["low"] is not None and c["low"] <= true and
+                                        (c["high"] is None or true <= c["high"]))
+                        cells.append(c)
+                        print("%-12s %5d %-7s %-3s est %.3g [%s, %s] true %.3g ratio %.3f "
+                              "mse ratio %.3f" % (scene, level, den, cfg, c["est"], c["low"],
+                                                  c["high"], true, c["ratio"],
+                                                  e["mse"] / true_mse), flush=True)
+    os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
+    with open(a.out + ".json", "w") as f:
+        json.dump(cells, f, indent=1)
+    write_md(cells, a.out + ".md", a.denoisers, a.configs)
+
+
+def write_md(cells, path, denoisers, configs):
+    lines = []
+    for den in denoisers:
+        lines.append("**Denoiser `%s`**: est/true relMSE (\\* = outside [0.67, 1.5]; "
+                     "(c) = the true value is outside the 95 %% interval)\n" % den)
+        lines.append("| scene | level | " + " | ".join(
+            "%s (spp)" % c for c in configs) + " |")
+        lines.append("|---|---|" + "---|" * len(configs))
+        for scene in sorted({c["scene"] for c in cells}, key=SCENES.index):
+            for level in sorted({c["level"] for c in cells}):
+                row = []
+                for cfg in configs:
+                    m = [c for c in cells if (c["scene"], c["level"], c["denoiser"], c["config"])
+                         == (scene, level, den, cfg)]
+                    if not m:
+                        row.append("")
+                        continue
+                    c = m[0]
+                    flag = "" if BAR[0] <= c["ratio"] <= BAR[1] else "\\*"
+                    cov = "" if c["covered"] else " (c)"
+                    row.append("%.2f%s%s (%g)" % (c["ratio"], flag, cov, c["spp"]))
+                lines.append("| %s | %d | %s |" % (scene, level, " | ".join(row)))
+        lines.append("")
+    inbar = [c for c in cells if c["spp"] >= 8]
+    bad = [c for c in inbar if not BAR[0] <= c["ratio"] <= BAR[1]]
+    low = [c for c in inbar if c["ratio"] < BAR[0]]
+    lines.append("Cells from 8 spp: %d; outside [0.67, 1.5]: %d (of which too low, i.e. toward "
+                 "\"done\": %d). True value inside the 95 %% interval: %d of %d.\n" % (
+                     len(inbar), len(bad), len(low), sum(c["covered"] for c in inbar), len(inbar)))
+    ratios = [c["ratio"] for c in inbar if c["ratio"] > 0 and math.isfinite(c["ratio"])]
+    if ratios:
+        lines.append("Geometric mean est/true: %.3f; range %.2f..%.2f.\n" % (
+            math.exp(sum(map(math.log, ratios)) / len(ratios)), min(ratios), max(ratios)))
+    with open(path, "w") as f:
+        f.write("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
