@@ -154,7 +154,8 @@ TEST_CASE("the fine t-test rejects a spot smeared within the authors' window", "
   const Rect px{cx, cy, cx + 1, cy + 1};
   Buffer coarse(px, 3), fine(px, 3);
   const Image passes(W, H, 1, 16.0f);
-  const VarianceOrigin origin{view_of(passes)};
+  VarianceOrigin origin;
+  origin.passes = view_of(passes);
   t_rescale(view_of(x), view_of(var), view_of(z), view_of(alpha), W, H, px, defaults.ttest, coarse,
             origin);
   t_rescale(view_of(x), view_of(var), view_of(z), view_of(alpha), W, H, px,
