@@ -190,7 +190,7 @@ TEST_CASE(
     CHECK(j["variance_source"] == "between_passes");
     CHECK(j["low_confidence"] == false);
     CHECK(j["inputs_used"] == "HDR+ALB+NRM+DEP");
-    CHECK(j["pipeline"]["denoiser"] == "cascade");  // the default (docs/cascade.md)
+    CHECK(j["pipeline"]["denoiser"] == "nlmeans");
     check_against_independent(set, out);
   }
 }
@@ -450,7 +450,7 @@ TEST_CASE(
       {"proden:passes", "8"},
       {"proden:spp", "32.000000"},
       {"proden:inputs", "HDR+ALB+NRM+DEP"},
-      {"proden:denoiser", "cascade"},  // the default (docs/cascade.md)
+      {"proden:denoiser", "nlmeans"},
       {"proden:mixer", "closed-form-stein"},
       {"proden:mixer_weights", "none"},
       {"proden:divergence", "analytic"},

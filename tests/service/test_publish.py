@@ -101,7 +101,7 @@ class PublishTest(unittest.TestCase):
             self.assertIn(k, hdr)
         self.assertTrue(hdr["Software"].startswith("proden "))
         self.assertEqual(hdr["proden:passes"], "2")
-        self.assertEqual(hdr["proden:denoiser"], "cascade")  # the default (docs/cascade.md)
+        self.assertEqual(hdr["proden:denoiser"], "nlmeans")
         self.assertEqual(hdr["proden:inputs"], "HDR+ALB+NRM+DEP")
         chans = channels(attrs)
         for layer in LAYERS:

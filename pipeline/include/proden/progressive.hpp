@@ -41,9 +41,8 @@ enum class MixerKind { closed_form, network };
 inline constexpr MixerKind kDefaultMixerKind = std::string_view(network::kDefaultMixer) == "network"
                                                    ? MixerKind::network
                                                    : MixerKind::closed_form;
-// The denoiser used when none is asked for ("auto"): the cascade, which saves the most samples on
-// bench/ (bench/RESULTS.md, *Sample savings*; docs/cascade.md).
-inline constexpr std::string_view kDefaultDenoiser = "cascade";
+// The denoiser used when none is asked for ("auto").
+inline constexpr std::string_view kDefaultDenoiser = "nlmeans";
 // The denoiser name that runs no stage at all: the published result is the render x.
 inline constexpr std::string_view kNoDenoiser = "none";
 
