@@ -60,8 +60,8 @@ FrameRecord frame_record_from_json(const json& j) {
   return r;
 }
 
-void save_frame_state(const fs::path& path, const FrameRecord& record,
-                      const FrameAccumulator& frame) {
+std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
+                                            const FrameAccumulator& frame) {
   const std::string text = to_json(record).dump();
   const std::vector<std::uint8_t> blob = frame.serialize();
   std::vector<std::uint8_t> out;
@@ -75,31 +75,35 @@ void save_frame_state(const fs::path& path, const FrameRecord& record,
   out.insert(out.end(), text.begin(), text.end());
   put64(text_hash(text));
   out.insert(out.end(), blob.begin(), blob.end());
-  write_file_atomic(path, out);
+  return out;
+}
+
+void save_frame_state(const fs::path& path, const FrameRecord& record,
+                      const FrameAccumulator& frame) {
+  write_file_atomic(path, frame_state_bytes(record, frame));
 }
 
 namespace {
 
-FrameRecord parse_record(std::span<const std::uint8_t> b, const fs::path& path,
+FrameRecord parse_record(std::span<const std::uint8_t> b, const std::string& path,
                          std::size_t* blob_offset) {
   std::uint64_t n = 0;
   if (b.size() < sizeof kMagic + 8 || std::memcmp(b.data(), kMagic, sizeof kMagic) != 0) {
-    throw std::runtime_error(path.string() + ": not a proden frame state");
+    throw std::runtime_error(path + ": not a proden frame state");
   }
   std::memcpy(&n, b.data() + sizeof kMagic, sizeof n);
   if (n > b.size() - sizeof kMagic - 8 || b.size() - sizeof kMagic - 8 - n < 8) {
-    throw std::runtime_error(path.string() + ": truncated frame state");
+    throw std::runtime_error(path + ": truncated frame state");
   }
   std::string text(reinterpret_cast<const char*>(b.data() + sizeof kMagic + 8), n);
   std::uint64_t h = 0;
   std::memcpy(&h, b.data() + sizeof kMagic + 8 + n, sizeof h);
-  if (h != text_hash(text))
-    throw std::runtime_error(path.string() + ": corrupt frame state record");
+  if (h != text_hash(text)) throw std::runtime_error(path + ": corrupt frame state record");
   if (blob_offset) *blob_offset = sizeof kMagic + 16 + n;
   try {
     return frame_record_from_json(json::parse(text));
   } catch (const json::exception& e) {
-    throw std::runtime_error(path.string() + ": bad frame state record: " + e.what());
+    throw std::runtime_error(path + ": bad frame state record: " + e.what());
   }
 }
 
@@ -120,21 +124,25 @@ FrameRecord load_frame_record(const fs::path& path) {
                static_cast<std::streamsize>(n + 8))) {
     throw std::runtime_error(path.string() + ": truncated frame state");
   }
-  return parse_record(head, path, nullptr);
+  return parse_record(head, path.string(), nullptr);
+}
+
+FrameAccumulator parse_frame_state(std::span<const std::uint8_t> bytes, const std::string& name,
+                                   FrameRecord* record) {
+  std::size_t offset = 0;
+  FrameRecord r = parse_record(bytes, name, &offset);
+  FrameAccumulator acc = FrameAccumulator::deserialize(bytes.subspan(offset));
+  if (acc.state_digest() != r.digest) {
+    throw std::runtime_error(name + ": accumulator does not match its record");
+  }
+  if (record) *record = std::move(r);
+  return acc;
 }
 
 FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* record) {
   auto bytes = read_file(path);
   if (!bytes) throw std::runtime_error(path.string() + ": cannot read");
-  std::size_t offset = 0;
-  FrameRecord r = parse_record(*bytes, path, &offset);
-  FrameAccumulator acc =
-      FrameAccumulator::deserialize(std::span<const std::uint8_t>(*bytes).subspan(offset));
-  if (acc.state_digest() != r.digest) {
-    throw std::runtime_error(path.string() + ": accumulator does not match its record");
-  }
-  if (record) *record = std::move(r);
-  return acc;
+  return parse_frame_state(*bytes, path.string(), record);
 }
 
 }  // namespace proden::daemon
