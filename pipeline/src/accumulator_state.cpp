@@ -7,6 +7,7 @@
 //   vec<f64> renderer variance; u64 history size, per record: str name, f64 spp, i32 half,
 //   u64 fingerprint, u64 dropped, u64 sanitized; trailing u64 hash of everything before it.
 // vec<T> = u64 length + raw values; moments = i32 channels + vec mean + vec m2.
+#include <cmath>
 #include <cstring>
 #include <type_traits>
 
@@ -66,6 +67,13 @@ class Reader {
     std::vector<T> v(n);
     if (n > 0) std::memcpy(v.data(), bytes.data() + pos, n * sizeof(T));
     pos += n * sizeof(T);
+    if constexpr (std::is_floating_point_v<T>) {
+      // add() never stores a non-finite statistic; one here is damage, however it got past the
+      // checksum (issue 11, class 9: never resume from NaN).
+      for (const T x : v) {
+        if (!std::isfinite(x)) fail("non-finite statistic in frame state");
+      }
+    }
     return v;
   }
   std::string str() {
@@ -168,6 +176,7 @@ FrameAccumulator FrameAccumulator::deserialize(std::span<const std::uint8_t> blo
     PassRecord rec;
     rec.name = r.str();
     rec.spp = r.get<double>();
+    if (!std::isfinite(rec.spp) || rec.spp <= 0.0) Reader::fail("bad spp in frame state history");
     rec.half = r.get<std::int32_t>();
     if (rec.half != 0 && rec.half != 1) Reader::fail("bad half index in frame state");
     rec.fingerprint = r.get<std::uint64_t>();

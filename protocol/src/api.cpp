@@ -6,6 +6,8 @@
 #include <cmath>
 #include <ctime>
 
+#include "proden/io/pass_reader.hpp"
+#include "proden/protocol/json.hpp"
 #include "proden/protocol/pipeline_spec.hpp"
 #include "proden/protocol/publish.hpp"
 
@@ -97,9 +99,9 @@ JobSpec parse_job_spec(const json& body) {
     bad("renderer", "one of auto, cycles, povray, generic");
   }
   if (body.contains("spp") && !body["spp"].is_null()) {
-    if (!body["spp"].is_number() || !std::isfinite(body["spp"].get<double>()) ||
-        body["spp"].get<double>() <= 0) {
-      bad("spp", "must be a positive number");
+    // The pass reader's bound: an spp it would refuse for every pass is refused here.
+    if (!body["spp"].is_number() || !io::valid_spp(body["spp"].get<double>())) {
+      bad("spp", "must be a sample count in (0, 2^32]");
     }
     j.spp = body["spp"].get<double>();
   }
@@ -171,9 +173,9 @@ PassIdentity pass_identity_from_json(const json& j) {
   PassIdentity p;
   p.pass = j.at("pass").get<std::string>();
   p.source = j.at("source").get<std::string>();
-  p.size = j.at("size").get<std::uint64_t>();
-  p.mtime_ns = j.at("mtime_ns").get<std::int64_t>();
-  p.content_hash = j.at("content_hash").get<std::uint64_t>();
+  p.size = checked_number<std::uint64_t>(j.at("size"), "size");
+  p.mtime_ns = checked_number<std::int64_t>(j.at("mtime_ns"), "mtime_ns");
+  p.content_hash = checked_number<std::uint64_t>(j.at("content_hash"), "content_hash");
   return p;
 }
 

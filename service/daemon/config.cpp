@@ -5,6 +5,8 @@
 
 #include <boost/asio/ip/address.hpp>
 
+#include "proden/protocol/json.hpp"
+
 namespace proden::daemon {
 
 using nlohmann::json;
@@ -14,6 +16,15 @@ namespace {
 template <class T>
 void take(const json& j, const char* key, T& out, const std::string& where) {
   if (!j.contains(key)) return;
+  if constexpr (std::is_arithmetic_v<T> && !std::is_same_v<T, bool>) {
+    // Checked: 1e20 as an int, or -1 as a byte count, is refused, not cast.
+    try {
+      out = protocol::checked_number<T>(j.at(key), "config: " + where + key);
+    } catch (const std::out_of_range& e) {
+      throw std::runtime_error(e.what());
+    }
+    return;
+  }
   try {
     out = j.at(key).get<T>();
   } catch (const json::exception&) {

@@ -6,6 +6,7 @@
 
 #include "daemon/files.hpp"
 #include "proden/hash.hpp"
+#include "proden/protocol/json.hpp"
 
 namespace proden::daemon {
 
@@ -42,20 +43,25 @@ json to_json(const FrameRecord& r) {
 }
 
 FrameRecord frame_record_from_json(const json& j) {
+  // Numbers checked, never cast blindly: a state holds only finite values in range (issue 11,
+  // class 9; fuzz/frame_state_fuzz.cpp).
+  const auto num = [&j]<class T>(const char* key, T& out) {
+    out = protocol::checked_number<T>(j.at(key), std::string("frame state record: ") + key);
+  };
   FrameRecord r;
-  r.frame = j.at("frame").get<long>();
-  r.version = j.at("version").get<std::uint64_t>();
+  num("frame", r.frame);
+  num("version", r.version);
   r.updated = j.at("updated").get<std::string>();
-  r.estimated_mse = j.at("estimated_mse").get<double>();
+  num("estimated_mse", r.estimated_mse);
   r.estimated_mse_source = j.at("estimated_mse_source").get<std::string>();
-  r.passes = j.at("passes").get<int>();
-  r.spp = j.at("spp").get<double>();
-  r.width = j.at("width").get<int>();
-  r.height = j.at("height").get<int>();
+  num("passes", r.passes);
+  num("spp", r.spp);
+  num("width", r.width);
+  num("height", r.height);
   r.inputs = j.at("inputs").get<std::string>();
   r.variance_source = j.at("variance_source").get<std::string>();
   r.low_confidence = j.at("low_confidence").get<bool>();
-  r.digest = j.at("digest").get<std::uint64_t>();
+  num("digest", r.digest);
   for (const auto& p : j.at("ingested")) r.ingested.push_back(protocol::pass_identity_from_json(p));
   return r;
 }
@@ -102,7 +108,7 @@ FrameRecord parse_record(std::span<const std::uint8_t> b, const std::string& pat
   if (blob_offset) *blob_offset = sizeof kMagic + 16 + n;
   try {
     return frame_record_from_json(json::parse(text));
-  } catch (const json::exception& e) {
+  } catch (const std::exception& e) {  // json::exception, or a number out of range
     throw std::runtime_error(path + ": bad frame state record: " + e.what());
   }
 }
