@@ -10,17 +10,28 @@
 #   make train   train both network widths on that data and export weights + parity fixtures
 #                (PyTorch from Debian, CPU; training/TRAINING.md); `make validate` prints the
 #                validation table of both mixers as proden runs them
+#   make fuzz    build the libFuzzer targets into build-fuzz/ (clang, ASan+UBSan) and run each one
+#                in turn until FUZZ_RUNS executions or FUZZ_SECONDS seconds (per target), growing
+#                build-fuzz/fuzz/corpus/; writes bench/results/fuzz.md (fuzz/README.md)
+#   make fuzz-smoke  each fuzz target FUZZ_SMOKE_SECONDS on the committed corpus (part of make test)
 #   make bench   build the benchmarks into build-bench/, render missing evaluation sets (EVALDATA,
 #                default /work/evaldata; slow on a fresh machine), regenerate bench/results/ and
 #                bench/RESULTS.md (bench/run_all.sh documents its variables)
-.PHONY: build test run run-cli deps asan test-asan format clean bench training-data train validate
+.PHONY: build test run run-cli deps asan test-asan format clean bench training-data train validate \
+        fuzz fuzz-build fuzz-smoke
 
 BUILD_DIR ?= build
 ASAN_DIR  ?= build-asan
 JOBS      ?= $(shell nproc)
+comma := ,
 WERROR    ?= ON
 OUT_DIR   ?= out
 BENCH_DIR ?= build-bench
+FUZZ_DIR  ?= build-fuzz
+FUZZ_SECONDS ?= 7200        # per target; the campaign stops earlier at FUZZ_RUNS executions
+FUZZ_RUNS ?= 10000000
+FUZZ_TARGETS ?= pass_reader,weights,frame_state,job_config,http_request,watch_pattern
+FUZZ_SMOKE_SECONDS ?= 20
 
 deps:
 	@tools/install-deps.sh
@@ -29,7 +40,7 @@ build: deps
 	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=Release -DPRODEN_WERROR=$(WERROR)
 	cmake --build $(BUILD_DIR) -j $(JOBS)
 
-test: build test-asan
+test: build test-asan fuzz-smoke
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)
 
 asan: deps
@@ -54,6 +65,19 @@ run-cli: build
 	$(BUILD_DIR)/proden eval --ref samples/renders/cornell/reference.exr \
 	    samples/renders/cornell/pass_00.exr $(OUT_DIR)/cornell.exr
 	@echo "outputs in $(OUT_DIR)/"
+
+# libFuzzer targets (fuzz/): clang 14 + compiler-rt from Debian, every proden library instrumented.
+fuzz-build: deps
+	cmake -S . -B $(FUZZ_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ \
+	      -DPRODEN_FUZZ=ON -DPRODEN_BUILD_TESTS=OFF -DPRODEN_BUILD_BENCH=OFF
+	cmake --build $(FUZZ_DIR) -j $(JOBS) --target $(addprefix fuzz_,$(subst $(comma), ,$(FUZZ_TARGETS)))
+
+fuzz-smoke: fuzz-build
+	fuzz/run.py smoke $(FUZZ_DIR) --seconds $(FUZZ_SMOKE_SECONDS) --targets $(FUZZ_TARGETS)
+
+fuzz: fuzz-build
+	fuzz/run.py campaign $(FUZZ_DIR) --seconds $(FUZZ_SECONDS) --runs $(FUZZ_RUNS) \
+	    --targets $(FUZZ_TARGETS)
 
 bench: deps
 	@tools/install-deps.sh blender   # renders the evaluation sets it lacks

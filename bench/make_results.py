@@ -4,7 +4,7 @@
 Generated parts: accuracy.md + accuracy_summary.json (bench/accuracy.py), perf.json + perf.txt
 (proden_bench_pipeline), cycles_1080p.json (Blender, same run), micro.txt (Google Benchmark).
 Hand-written parts, included verbatim: accumulation.md, daemon.md (measurements made by other
-tools; edit them there, not in RESULTS.md).
+tools; edit them there, not in RESULTS.md), and fuzz.md (written by `make fuzz`, fuzz/run.py).
 """
 import json
 import math
@@ -200,7 +200,8 @@ def main():
          "edit by hand. The generated parts come from `bench/results/` (CSV, PNG, JSON, raw "
          "output). The *Accumulation* and *Daemon* sections were measured by other tools and are "
          "kept as hand-written parts, `bench/results/accumulation.md` and "
-         "`bench/results/daemon.md`, which the generator includes verbatim: edit those files. "
+         "`bench/results/daemon.md`, which the generator includes verbatim: edit those files; "
+         "the *Fuzzing* section is `bench/results/fuzz.md`, written by `make fuzz`. "
          "So is `bench/results/closing_extra.md`, the interpretation at the end.",
          "",
          "Machine: the project's 2-core AVX-512 VM (Debian 12, g++ 12 -O3, no -march), shared "
@@ -224,7 +225,7 @@ def main():
         L.append("\n".join(l for l in micro.splitlines() if l.startswith(("BM_", "---", "Bench",
                                                                           "Run on"))))
         L.append("```\n")
-    for part in ("accumulation.md", "daemon.md"):
+    for part in ("accumulation.md", "daemon.md", "fuzz.md"):
         t = read(part)
         if t:
             L.append(t)
