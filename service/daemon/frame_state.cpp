@@ -70,17 +70,18 @@ std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
                                             const FrameAccumulator& frame) {
   const std::string text = to_json(record).dump();
   const std::vector<std::uint8_t> blob = frame.serialize();
-  std::vector<std::uint8_t> out;
-  out.reserve(sizeof(kMagic) + 16 + text.size() + blob.size());
-  auto put64 = [&out](std::uint64_t v) {
-    const auto* p = reinterpret_cast<const std::uint8_t*>(&v);
-    out.insert(out.end(), p, p + sizeof v);
+  const std::uint64_t n = text.size(), h = text_hash(text);
+  std::vector<std::uint8_t> out(sizeof(kMagic) + 16 + text.size() + blob.size());
+  std::uint8_t* at = out.data();
+  const auto put = [&at](const void* src, std::size_t len) {
+    std::memcpy(at, src, len);
+    at += len;
   };
-  out.insert(out.end(), kMagic, kMagic + sizeof kMagic);
-  put64(text.size());
-  out.insert(out.end(), text.begin(), text.end());
-  put64(text_hash(text));
-  out.insert(out.end(), blob.begin(), blob.end());
+  put(kMagic, sizeof kMagic);
+  put(&n, sizeof n);
+  put(text.data(), text.size());
+  put(&h, sizeof h);
+  put(blob.data(), blob.size());
   return out;
 }
 
