@@ -1,7 +1,8 @@
 # proden entry points. Each target is idempotent and does all of its own set-up on Debian 12
 # (dependencies via tools/install-deps.sh, configure, build).
 #   make build   install deps if missing, Release build into build/ (CLI at build/proden)
-#   make test    build, run the whole CTest suite, then the unit tests again under ASan+UBSan
+#   make test    build, run the whole CTest suite, then the unit and daemon tests again under
+#                ASan+UBSan, and the daemon and service tests under ThreadSanitizer (build-tsan/)
 #   make run     build and start the daemon (`proden serve`) with a demo job fed by the samples
 #   make run-cli build and run the CLI on the bundled samples
 #   make training-data  render the learned mixer's training/validation frames with Blender and
@@ -17,11 +18,12 @@
 #   make bench   build the benchmarks into build-bench/, render missing evaluation sets (EVALDATA,
 #                default /work/evaldata; slow on a fresh machine), regenerate bench/results/ and
 #                bench/RESULTS.md (bench/run_all.sh documents its variables)
-.PHONY: build test run run-cli deps asan test-asan format clean bench training-data train validate \
-        fuzz fuzz-build fuzz-smoke
+.PHONY: build test run run-cli deps asan test-asan tsan test-tsan format clean bench training-data \
+        train validate fuzz fuzz-build fuzz-smoke
 
 BUILD_DIR ?= build
 ASAN_DIR  ?= build-asan
+TSAN_DIR  ?= build-tsan
 JOBS      ?= $(shell nproc)
 comma := ,
 WERROR    ?= ON
@@ -40,7 +42,7 @@ build: deps
 	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=Release -DPRODEN_WERROR=$(WERROR)
 	cmake --build $(BUILD_DIR) -j $(JOBS)
 
-test: build test-asan fuzz-smoke
+test: build test-asan test-tsan fuzz-smoke
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS)
 
 asan: deps
@@ -53,6 +55,17 @@ asan: deps
 test-asan: asan
 	cd $(ASAN_DIR) && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 \
 	  UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 ctest --output-on-failure -L 'unit|daemon' -j $(JOBS)
+
+# The ThreadSanitizer configuration builds only the daemon and its tests, and runs the daemon's
+# unit tests and the service tests (tests/service/*.py against the TSan-built daemon; a TSan
+# report fails the test).
+tsan: deps
+	cmake -S . -B $(TSAN_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DPRODEN_TSAN=ON \
+	      -DPRODEN_WERROR=$(WERROR) -DPRODEN_BUILD_BENCH=OFF
+	cmake --build $(TSAN_DIR) -j $(JOBS) --target proden proden_daemon_tests
+
+test-tsan: tsan
+	cd $(TSAN_DIR) && ctest --output-on-failure -L 'daemon|service' -j $(JOBS)
 
 run: build
 	OUT_DIR=$(OUT_DIR) tools/run-daemon.sh
@@ -113,4 +126,4 @@ format:
 	clang-format -i $$(git ls-files '*.cpp' '*.hpp')
 
 clean:
-	rm -rf $(BUILD_DIR) $(ASAN_DIR)
+	rm -rf $(BUILD_DIR) $(ASAN_DIR) $(TSAN_DIR)

@@ -23,28 +23,43 @@ using namespace proden::daemon;
 
 namespace {
 
-// The two checksums of the file format (daemon/frame_state.cpp, pipeline/src/accumulator_state
-// .cpp). LLVMFuzzerInitialize proves them against a real state, so the harness cannot silently
-// stop reaching past the gates if the format changes.
+// The checksums of the file format (daemon/frame_state.cpp: version 1 "PRDNFRS1" = magic, u64 n,
+// record, u64 record hash, accumulator blob; version 2 "PRDNFRS2" = the same with the blob's
+// length before it and a hash of the whole file after it; the blob ends with its own checksum,
+// pipeline/src/accumulator_state.cpp). LLVMFuzzerInitialize proves them against a real state, so
+// the harness cannot silently stop reaching past the gates if the format changes.
 constexpr std::uint64_t kRecordSeed = 0x66726d;
+constexpr std::uint64_t kFileSeed = 0x66726d32;
 constexpr std::uint64_t kBlobSeed = 0x61636373746174;
 
 void put64(std::vector<std::uint8_t>& b, std::size_t at, std::uint64_t v) {
   std::memcpy(b.data() + at, &v, sizeof v);
 }
 
-// Recomputes the record hash and the blob checksum where the layout allows; false if it does not.
+void fix_blob(std::vector<std::uint8_t>& b, std::size_t begin, std::size_t end) {
+  if (end - begin >= 16)
+    put64(b, end - 8, hash_bytes({b.data() + begin, end - 8 - begin}, kBlobSeed));
+}
+
+// Recomputes every checksum (and a version 2 blob length) where the layout allows; false if not.
 bool fix_checksums(std::vector<std::uint8_t>& b) {
-  if (b.size() < 16 || std::memcmp(b.data(), "PRDNFRS1", 8) != 0) return false;
+  if (b.size() < 16) return false;
+  const bool v1 = std::memcmp(b.data(), "PRDNFRS1", 8) == 0;
+  const bool v2 = std::memcmp(b.data(), "PRDNFRS2", 8) == 0;
+  if (!v1 && !v2) return false;
   std::uint64_t n = 0;
   std::memcpy(&n, b.data() + 8, sizeof n);
   if (n > b.size() - 16 || b.size() - 16 - n < 8) return false;
   put64(b, 16 + n, hash_bytes({b.data() + 16, n}, kRecordSeed));
-  const std::size_t blob = 24 + n;
-  if (b.size() - blob >= 16) {
-    const std::size_t body = b.size() - 8 - blob;
-    put64(b, b.size() - 8, hash_bytes({b.data() + blob, body}, kBlobSeed));
+  if (v1) {
+    fix_blob(b, 24 + n, b.size());
+    return true;
   }
+  if (b.size() - 24 - n < 16) return false;
+  const std::size_t blob = 32 + n, end = b.size() - 8;
+  put64(b, 24 + n, end - blob);
+  fix_blob(b, blob, end);
+  put64(b, end, hash_bytes({b.data(), end}, kFileSeed));
   return true;
 }
 

@@ -18,17 +18,38 @@ std::uint64_t mix(std::uint64_t h) {  // splitmix64 finaliser
 
 }  // namespace
 
-std::uint64_t hash_bytes(std::span<const unsigned char> bytes, std::uint64_t seed) {
-  std::uint64_t h = mix(seed ^ (bytes.size() * kMul));
+ByteHasher::ByteHasher(std::uint64_t total, std::uint64_t seed) : h_(mix(seed ^ (total * kMul))) {}
+
+void ByteHasher::update(std::span<const unsigned char> bytes) {
   std::size_t i = 0;
-  for (; i + 8 <= bytes.size(); i += 8) {
-    std::uint64_t word;
-    std::memcpy(&word, bytes.data() + i, 8);
-    h = mix(h ^ (word * kMul)) + kMul;
+  while (i < bytes.size()) {
+    if (fill_ == 0 && i + 8 <= bytes.size()) {  // whole words straight from the input
+      std::uint64_t word;
+      std::memcpy(&word, bytes.data() + i, 8);
+      h_ = mix(h_ ^ (word * kMul)) + kMul;
+      i += 8;
+      continue;
+    }
+    word_[fill_++] = bytes[i++];
+    if (fill_ == 8) {
+      std::uint64_t word;
+      std::memcpy(&word, word_, 8);
+      h_ = mix(h_ ^ (word * kMul)) + kMul;
+      fill_ = 0;
+    }
   }
+}
+
+std::uint64_t ByteHasher::finish() const {
   std::uint64_t tail = 0;
-  if (i < bytes.size()) std::memcpy(&tail, bytes.data() + i, bytes.size() - i);
-  return mix(h ^ tail ^ kMul);
+  std::memcpy(&tail, word_, fill_);
+  return mix(h_ ^ tail ^ kMul);
+}
+
+std::uint64_t hash_bytes(std::span<const unsigned char> bytes, std::uint64_t seed) {
+  ByteHasher h(bytes.size(), seed);
+  h.update(bytes);
+  return h.finish();
 }
 
 }  // namespace proden

@@ -6,7 +6,6 @@
 #include <cmath>
 #include <ctime>
 
-#include "proden/io/pass_reader.hpp"
 #include "proden/protocol/json.hpp"
 #include "proden/protocol/pipeline_spec.hpp"
 #include "proden/protocol/publish.hpp"
@@ -74,6 +73,16 @@ json ApiError::to_json() const {
   return {{"error", {{"code", code_}, {"message", what()}}}};
 }
 
+// Smallest spp a pass may claim: a fraction of a sample makes no sense below this.
+constexpr double kMinPassSpp = 1e-3;
+
+void validate_job_spec(const JobSpec& spec) {
+  if (spec.spp &&
+      (!std::isfinite(*spec.spp) || *spec.spp < kMinPassSpp || *spec.spp > kMaxPassSpp)) {
+    bad("spp", "must be a number of samples per pass in [0.001, 1048576]");
+  }
+}
+
 JobSpec parse_job_spec(const json& body) {
   if (!body.is_object()) throw ApiError(400, "invalid_body", "job body must be a JSON object");
   JobSpec j;
@@ -99,10 +108,7 @@ JobSpec parse_job_spec(const json& body) {
     bad("renderer", "one of auto, cycles, povray, generic");
   }
   if (body.contains("spp") && !body["spp"].is_null()) {
-    // The pass reader's bound: an spp it would refuse for every pass is refused here.
-    if (!body["spp"].is_number() || !io::valid_spp(body["spp"].get<double>())) {
-      bad("spp", "must be a sample count in (0, 2^32]");
-    }
+    if (!body["spp"].is_number()) bad("spp", "must be a number");
     j.spp = body["spp"].get<double>();
   }
   if (body.contains("pipeline") && !body["pipeline"].is_null()) {
@@ -135,6 +141,7 @@ JobSpec parse_job_spec(const json& body) {
     if (!body["paused"].is_boolean()) bad("paused", "must be a boolean");
     j.paused = body["paused"].get<bool>();
   }
+  validate_job_spec(j);
   return j;
 }
 

@@ -9,8 +9,10 @@
 #include <cstring>
 #include <utility>
 
+#include "daemon/colour_map.hpp"
 #include "daemon/files.hpp"
 #include "daemon/pass_pattern.hpp"
+#include "daemon/web_assets.hpp"
 #include "proden/io/text.hpp"
 
 namespace proden::daemon {
@@ -23,6 +25,11 @@ namespace {
 bool mutating(http::verb v) {
   return v == http::verb::post || v == http::verb::put || v == http::verb::delete_ ||
          v == http::verb::patch;
+}
+
+// Reads that carry the daemon's data (everything but the probes and the dashboard's files).
+bool protected_read(const std::vector<std::string>& p) {
+  return !p.empty() && (p[0] == "api" || p[0] == "metrics");
 }
 
 bool constant_time_equal(std::string_view a, std::string_view b) {
@@ -55,6 +62,25 @@ struct SpoolGuard {
     if (!path.empty()) ::unlink(path.c_str());
   }
 };
+
+// GET /api/v1/colormaps: how each layer is drawn as a PNG, and the maps' colours for legends.
+json colour_maps_json() {
+  json maps = json::object();
+  for (ColourMap cm : {ColourMap::viridis, ColourMap::magma}) {
+    maps[std::string(name(cm))] = colour_stops(cm, 32);
+  }
+  json layers = json::object();
+  for (const char* l :
+       {"result", "render", "denoised", "alpha", "variance", "mixvariance", "sure", "error"}) {
+    const LayerView v = layer_view(l);
+    if (v.colour) {
+      layers[l] = {{"kind", "colour"}};
+    } else {
+      layers[l] = {{"kind", "scalar"}, {"colormap", name(v.map)}, {"scale", name(v.scale)}};
+    }
+  }
+  return {{"colormaps", maps}, {"layers", layers}};
+}
 
 }  // namespace
 
@@ -98,7 +124,7 @@ std::optional<Response> Api::before_body(const http::request_header<>& h, BodyPo
   const auto target = parse_target(std::string_view(h.target().data(), h.target().size()), why);
   if (!target) return error(400, "bad_request", why);
   const bool auth = authorized(h);
-  if (mutating(h.method()) && !auth) {
+  if ((mutating(h.method()) || (!config_.open_reads && protected_read(target->path))) && !auth) {
     return error(401, "unauthorized", "this request needs Authorization: Bearer <token>");
   }
   policy.inline_ok = is_health(target->path) && h.method() == http::verb::get;
@@ -139,14 +165,24 @@ Handler::Reply Api::handle(Incoming& in) {
 
 Handler::Reply Api::upload(Incoming& in, const std::vector<std::string>& p) {
   const std::filesystem::path spooled = std::exchange(in.body_file, {});  // the engine owns it
-  return {json_response(202, engine_.upload_spooled(p[3], p[5], p[7], spooled))};
+  const auto answer = engine_.upload_spooled(p[3], p[5], p[7], spooled);
+  return {json_response(answer.value("status", "") == "ingested" ? 200 : 202, answer)};
 }
 
-Handler::Reply Api::image(const std::string& id, long frame,
+Handler::Reply Api::image(const Request& req, const std::string& id, long frame,
                           const std::map<std::string, std::string>& query) {
-  const std::string format = query.count("format") ? query.at("format") : "exr";
-  const std::string layer = query.count("layer") ? query.at("layer") : "";
-  const auto img = engine_.image(id, frame, format, layer);
+  const auto img = engine_.image(id, frame, PreviewCache::Request::from_query(query));
+  Reply r;
+  r.response = Response{http::status::ok, 11};
+  r.response.set(http::field::server, "proden");
+  r.response.set(http::field::cache_control, "no-cache");
+  r.response.set(http::field::etag, img.etag);
+  for (const auto& [k, v] : img.headers) r.response.set(k, v);
+  const auto inm = req[http::field::if_none_match];
+  if (!inm.empty() && std::string_view(inm.data(), inm.size()) == img.etag) {
+    r.response.result(http::status::not_modified);
+    return r;
+  }
   // Published outputs live in an allowed root (opened beneath it); renditions in the state dir.
   UniqueFd fd;
   if (img.path.string().starts_with(config_.state_dir + "/")) {
@@ -164,11 +200,7 @@ Handler::Reply Api::image(const std::string& id, long frame,
   if (!fd || ::fstat(fd.get(), &st) != 0 || !S_ISREG(st.st_mode)) {
     throw ApiError(404, "not_found", "published image is not readable");
   }
-  Reply r;
-  r.response = Response{http::status::ok, 11};
-  r.response.set(http::field::server, "proden");
   r.response.set(http::field::content_type, img.content_type);
-  r.response.set(http::field::cache_control, "no-cache");
   r.file = std::move(fd);
   return r;
 }
@@ -193,9 +225,18 @@ Handler::Reply Api::route(Incoming& in, const std::vector<std::string>& p,
     r.body() = metrics_.render();
     return {r};
   }
-  if (n < 3 || p[0] != "api" || p[1] != "v1") {
+  if (n == 0 || p[0] != "api") {  // the dashboard's static files
+    if (config_.dashboard && (m == http::verb::get || m == http::verb::head)) {
+      if (auto r = WebAssets::builtin().serve(req)) return {std::move(*r)};
+      if (n == 0) {
+        throw ApiError(404, "not_found",
+                       "this proden was built without the dashboard (web/: npm ci, then rebuild; "
+                       "docs/dashboard.md)");
+      }
+    }
     throw ApiError(404, "not_found", "no such endpoint");
   }
+  if (n < 3 || p[1] != "v1") throw ApiError(404, "not_found", "no such endpoint");
   if (draining_ && m != http::verb::get) {
     throw ApiError(503, "unavailable", "the daemon is shutting down");
   }
@@ -213,6 +254,10 @@ Handler::Reply Api::route(Incoming& in, const std::vector<std::string>& p,
       }
     }
     return r;
+  }
+  if (n == 3 && p[2] == "colormaps") {
+    if (m != http::verb::get) not_allowed("GET");
+    return {json_response(200, colour_maps_json())};
   }
   if (p[2] != "jobs") throw ApiError(404, "not_found", "no such endpoint");
   if (n == 3) {
@@ -252,6 +297,14 @@ Handler::Reply Api::route(Incoming& in, const std::vector<std::string>& p,
     Response r{http::status::no_content, 11};
     return {r};
   }
+  if (n == 5 && p[4] == "history") {
+    if (m != http::verb::get) not_allowed("GET");
+    return {json_response(200, {{"job", id}, {"frames", engine_.job_history(id)}})};
+  }
+  if (n == 5 && p[4] == "quarantine") {
+    if (m != http::verb::get) not_allowed("GET");
+    return {json_response(200, {{"job", id}, {"quarantined", engine_.quarantined(id)}})};
+  }
   if (n == 5 && (p[4] == "pause" || p[4] == "resume")) {
     if (m != http::verb::post) not_allowed("POST");
     return {json_response(200, protocol::to_json(engine_.set_paused(id, p[4] == "pause")))};
@@ -270,9 +323,14 @@ Handler::Reply Api::route(Incoming& in, const std::vector<std::string>& p,
     if (m != http::verb::get) not_allowed("GET");
     return {json_response(200, protocol::to_json(engine_.frame(id, frame), true))};
   }
+  if (n == 7 && p[6] == "history") {
+    if (m != http::verb::get) not_allowed("GET");
+    return {json_response(
+        200, {{"job", id}, {"frame", frame}, {"versions", engine_.history(id, frame)}})};
+  }
   if (n == 7 && p[6] == "image") {
     if (m != http::verb::get) not_allowed("GET");
-    return image(id, frame, query);
+    return image(req, id, frame, query);
   }
   if (n == 8 && p[6] == "passes") {
     if (m != http::verb::put) not_allowed("PUT");

@@ -32,7 +32,8 @@ class Api : public Handler {
   Reply route(Incoming& in, const std::vector<std::string>& path,
               const std::map<std::string, std::string>& query);
   Reply upload(Incoming& in, const std::vector<std::string>& path);
-  Reply image(const std::string& id, long frame, const std::map<std::string, std::string>& query);
+  Reply image(const Request& req, const std::string& id, long frame,
+              const std::map<std::string, std::string>& query);
   Response json_response(int status, const nlohmann::json& body) const;
   bool authorized(const http::request_header<>& header) const;
 

@@ -32,8 +32,8 @@ struct Limits {
                                   // (at most max_connections / 4)
 };
 
-// ---- hostile pass files (issue 11; docs/api.md "Security and limits"): bounds checked from a pass's header
-// before it is decoded (io::ReadLimits). ----
+// ---- hostile pass files (issue 11; docs/api.md "Security and limits"): bounds checked from a
+// pass's header before it is decoded (io::ReadLimits). ----
 struct InputLimits {
   std::uint64_t max_pixels = 7680ull * 4320;  // width * height (8K UHD)
   int max_channels = 1024;                    // all parts of one file
@@ -56,9 +56,14 @@ struct Config {
   std::string state_dir = "proden-state";
   std::vector<std::string> allowed_roots;
   std::string token_file;
+  // With a token file, reads (GET /api/v1/..., /metrics) need the token too unless this is set;
+  // /livez, /readyz and the dashboard's static files are always open.
+  bool open_reads = false;
+  bool dashboard = true;        // serve the dashboard from / (docs/dashboard.md)
   int worker_threads = 2;       // frames processed concurrently
   int io_threads = 2;           // HTTP threads
   int max_resident_frames = 2;  // accumulators cached in memory (others reload from state)
+  int pipeline_threads = 0;     // threads of one frame's pipeline (TBB); 0 = one per core
   std::string log_level = "info";
   Limits limits;
   WatchConfig watch;
@@ -70,6 +75,8 @@ struct Config {
 // Applies the keys present in `j` over `c` (throws std::runtime_error on unknown keys or types).
 void apply_json(Config& c, const nlohmann::json& j);
 void load_config_file(Config& c, const std::string& path);
+// Checks every number against its bounds (throws std::runtime_error naming the key).
+void validate(const Config& c);
 nlohmann::json to_json(const Config& c);
 
 bool is_loopback_address(const std::string& host);

@@ -9,8 +9,10 @@
 #include <cstdio>
 #include <random>
 
+#include "daemon/frame_history.hpp"
 #include "daemon/processor.hpp"
 #include "daemon/request_parse.hpp"
+#include "proden/hash.hpp"
 #include "proden/io/pass_reader.hpp"
 
 namespace proden::daemon {
@@ -53,12 +55,13 @@ long parse_frame(const std::string& s) {
 }  // namespace
 
 Engine::Engine(const Config& config, const Roots& roots, Metrics& metrics, EventHub& events,
-               FsHook fs_hook)
+               EngineTestHooks hooks)
     : config_(config),
       roots_(roots),
       metrics_(metrics),
       events_(events),
-      store_(config_.state_dir, std::move(fs_hook)) {
+      clock_(hooks.clock ? *hooks.clock : steady_clock()),
+      store_(config_.state_dir, std::move(hooks.fs)) {
   retry_.max_attempts = config_.watch.max_attempts;
   Watcher::Callbacks cb;
   cb.wanted = [this](const FoundFile& f) { return wanted(f); };
@@ -71,7 +74,7 @@ Engine::Engine(const Config& config, const Roots& roots, Metrics& metrics, Event
   watcher_ = std::make_unique<Watcher>(config_.watch, roots_, std::move(cb));
   scheduler_ = std::make_unique<Scheduler>(
       config_.worker_threads, [this](const std::string& job, long frame) { run_frame(job, frame); },
-      &metrics_);
+      &metrics_, clock_);
 }
 
 Engine::~Engine() {
@@ -79,6 +82,12 @@ Engine::~Engine() {
 }
 
 void Engine::start() {
+  validate(config_);
+  if (config_.pipeline_threads > 0) {
+    pipeline_threads_ =
+        std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                              static_cast<std::size_t>(config_.pipeline_threads));
+  }
   fs::create_directories(store_.jobs_dir());
   load_state();
   watcher_->start();
@@ -110,8 +119,9 @@ void Engine::load_state() {
 }
 
 void Engine::load_job(const fs::path& dir) {
+  std::vector<std::pair<long, std::string>> damaged;
   auto loaded = store_.load_job(
-      dir, [this](const std::string&) { metrics_.inc("proden_errors_total", "corrupt_state"); });
+      dir, [&](long frame, const std::string& msg) { damaged.emplace_back(frame, msg); });
   if (!loaded) return;
   auto job = std::make_shared<Job>();
   job->spec = std::move(loaded->spec);
@@ -124,8 +134,9 @@ void Engine::load_job(const fs::path& dir) {
     fr.published_version = lf.published_version;
   }
   const std::string id = job->spec.id;
-  std::lock_guard lock(mu_);
+  for (const auto& [frame, msg] : damaged) on_damaged(id, frame, msg);
   {
+    std::lock_guard lock(mu_);
     jobs_[id] = job;
     scheduler_->set_paused(id, job->spec.paused);
     for (auto& [frame, pd] : loaded->uploads) {
@@ -139,6 +150,7 @@ void Engine::load_job(const fs::path& dir) {
       if (!fr.pending.empty() || fr.published_version < fr.rec.version) enqueue(*job, no);
     }
   }
+  // Not under the engine's lock: the watcher calls back into the engine under its own.
   if (job->spec.watch) {
     std::string why;
     if (roots_.confine(job->spec.watch->dir, why)) {
@@ -150,11 +162,18 @@ void Engine::load_job(const fs::path& dir) {
   spdlog::info("resumed job {} ({}): {} frame(s)", id, job->spec.name, job->frames.size());
 }
 
+void Engine::on_damaged(const std::string& job, long frame, const std::string& message) {
+  spdlog::error("job {} frame {}: {}", job, frame, message);
+  metrics_.inc("proden_errors_total", "corrupt_state");
+  publish_error(events_, job, frame, "", store_.state_path(job, frame).string(), "corrupt_state",
+                message, false);
+}
+
 void Engine::save_quarantine(const std::shared_ptr<Job>& job) {
   std::string text;
   {
     std::lock_guard lock(mu_);
-    text = job->quarantine.to_json().dump(1);
+    text = job->quarantine.to_json().dump(1, ' ', false, json::error_handler_t::replace);
   }
   try {
     store_.save_quarantine(job->spec.id, text);
@@ -188,6 +207,12 @@ bool Engine::wait_idle(int timeout_ms) {
   return scheduler_->wait_idle(timeout_ms);
 }
 
+void Engine::retry_later(Job& job, long frame_no, Frame& fr, const PendingPass& p,
+                         std::chrono::milliseconds delay) {
+  fr.retry[p.pass] = Retry{p, clock_.now() + delay};
+  if (!job.deleted) scheduler_->enqueue(job.spec.id, frame_no, delay);
+}
+
 void Engine::run_frame(const std::string& job_id, long frame_no) {
   std::shared_ptr<Job> job;
   FrameRun::Input in;
@@ -197,10 +222,19 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
     if (it == jobs_.end() || it->second->deleted) return;
     job = it->second;
     Frame& fr = job->frames[frame_no];
+    const auto now = clock_.now();
+    for (auto r = fr.retry.begin(); r != fr.retry.end();) {  // retries that are due join
+      if (r->second.due <= now) {
+        fr.pending.emplace(r->first, r->second.pass);
+        r = fr.retry.erase(r);
+      } else {
+        ++r;
+      }
+    }
     for (auto& [pass, p] : fr.pending) {
       if (!fr.ingested.count(pass)) {
-        fr.inflight.insert(pass);
-        in.batch.push_back(std::move(p));
+        fr.inflight[pass] = p;
+        in.batch.push_back(p);
       }
     }
     fr.pending.clear();
@@ -227,6 +261,7 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
     for (const auto& a : accepted) {
       fr.ingested.insert(a.pass);
       fr.attempts.erase(a.pass);
+      fr.inflight.erase(a.pass);
     }
   };
   hooks.published = [&](std::uint64_t version, const std::vector<std::string>& outputs) {
@@ -235,19 +270,83 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
     fr.published_version = version;
     fr.outputs = outputs;
   };
-  FrameRun run(store_, metrics_, events_, std::move(hooks));
-  const FrameRun::Outcome out = run.run(std::move(in));
+  hooks.recovered = [&](const FrameRecord& good) {
+    // Passes after the last good state: watched files are offered again by the watcher (they
+    // are no longer ingested); kept uploads are read again.
+    const auto kept = store_.restore_kept(job_id, frame_no, good);
+    std::lock_guard lock(mu_);
+    Frame& fr = job->frames[frame_no];
+    fr.rec = good;
+    fr.ingested.clear();
+    for (const auto& p : good.ingested) fr.ingested.insert(p.pass);
+    for (const auto& p : kept) {
+      if (!fr.has(p.pass)) fr.pending[p.pass] = p;
+    }
+  };
+  FrameRun::Outcome out;
+  try {
+    FrameRun run(store_, metrics_, events_, std::move(hooks));
+    out = run.run(std::move(in));
+  } catch (...) {
+    // Nothing escapes without putting the batch back: it is retried after a back-off (the
+    // scheduler logs the exception and runs the frame again).
+    std::lock_guard lock(mu_);
+    Frame& fr = job->frames[frame_no];
+    for (const auto& p : batch) {
+      if (fr.inflight.erase(p.pass)) fr.retry[p.pass] = Retry{p, clock_.now()};
+    }
+    throw;
+  }
 
+  if (out.result == FrameRun::Result::state_unreadable) {
+    // Neither the state nor the last good one loads: the frame starts over from its passes.
+    store_.set_aside(job_id, frame_no);
+    on_damaged(job_id, frame_no,
+               out.error +
+                   "; the frame restarts from its passes (watched files and kept "
+                   "uploads are read again)");
+  }
+  const auto kept = out.result == FrameRun::Result::state_unreadable
+                        ? store_.restore_kept(job_id, frame_no, FrameRecord{})
+                        : std::vector<PendingPass>{};
   std::lock_guard lock(mu_);
   Frame& fr = job->frames[frame_no];
-  for (const auto& p : batch) fr.inflight.erase(p.pass);
-  if (out.result == FrameRun::Result::state_unreadable) {
-    for (const auto& p : batch) {
-      if (p.upload) fr.pending[p.pass] = p;  // keep stored uploads for a later run
+  std::vector<PendingPass> unfinished;  // read by this run, neither committed nor failed
+  for (const auto& p : batch) {
+    auto it = fr.inflight.find(p.pass);
+    if (it == fr.inflight.end()) continue;
+    fr.inflight.erase(it);
+    if (!fr.has(p.pass) && !job->quarantine.contains(frame_no, p.pass)) unfinished.push_back(p);
+  }
+  switch (out.result) {
+    case FrameRun::Result::state_unreadable: {
+      FrameRecord fresh;
+      fresh.frame = frame_no;
+      fresh.version = std::max(fr.rec.version, fr.published_version);  // versions only increase
+      fr.rec = std::move(fresh);
     }
-  } else if (out.result == FrameRun::Result::done) {
-    fr.acc = out.acc;
-    fr.last_used = ++use_clock_;
+      fr.has_state = false;
+      fr.ingested.clear();
+      for (const auto& p : unfinished) fr.pending[p.pass] = p;
+      for (const auto& p : kept) {
+        if (!fr.has(p.pass)) fr.pending[p.pass] = p;
+      }
+      break;
+    case FrameRun::Result::failed: {
+      // Persisting or publishing failed (disk full, I/O error): try again after a back-off, the
+      // passes of the batch (uploads included) or the publish of the committed version.
+      const auto delay = retry_.backoff(++fr.failures);
+      for (const auto& p : unfinished) {
+        if (p.upload || !out.committed) retry_later(*job, frame_no, fr, p, delay);
+      }
+      if (out.committed) scheduler_->enqueue(job_id, frame_no, delay);
+      break;
+    }
+    case FrameRun::Result::done:
+      fr.failures = 0;
+      fr.acc = out.acc;
+      fr.last_used = ++use_clock_;
+      break;
   }
   if (!fr.pending.empty()) enqueue(*job, frame_no);
   evict();
@@ -261,10 +360,23 @@ void Engine::on_failed(const std::shared_ptr<Job>& job, long frame, const Pendin
     attempts = ++job->frames[frame].attempts[p.pass];
   }
   if (retry_.decide(f, attempts, p.upload) == RetryPolicy::Action::retry) {
-    spdlog::info("{}: {} (attempt {}/{}): {}", p.path.string(), f.kind, attempts,
-                 retry_.max_attempts, f.message);
-    metrics_.inc("proden_errors_total", "read_retry");
-    return;  // the watcher's next scan offers it again
+    const auto delay = retry_.backoff(attempts);
+    if (f.cls == ErrorClass::bad_input) {
+      spdlog::info("{}: {} (attempt {}/{}): {}", p.path.string(), f.kind, attempts,
+                   retry_.max_attempts, f.message);
+      metrics_.inc("proden_errors_total", "read_retry");
+    } else {
+      spdlog::error("{}: {} error (attempt {}, retried in {} ms): {}", p.path.string(), f.kind,
+                    attempts, delay.count(), f.message);
+      metrics_.inc("proden_errors_total", f.kind);
+      publish_error(events_, job->spec.id, frame, p.pass, p.path.string(), f.kind, f.message,
+                    false);
+    }
+    std::lock_guard lock(mu_);
+    Frame& fr = job->frames[frame];
+    fr.inflight.erase(p.pass);
+    retry_later(*job, frame, fr, p, delay);
+    return;
   }
   quarantine(job, frame, p, f.kind, f.message);
 }
@@ -277,6 +389,7 @@ void Engine::quarantine(const std::shared_ptr<Job>& job, long frame, const Pendi
     job->quarantine.add(frame, p.pass,
                         QuarantineRecord{p.path.string(), kind, message, protocol::now_rfc3339(),
                                          p.size, p.mtime_ns});
+    job->frames[frame].inflight.erase(p.pass);
   }
   save_quarantine(job);
   metrics_.inc("proden_errors_total", kind);
@@ -285,10 +398,52 @@ void Engine::quarantine(const std::shared_ptr<Job>& job, long frame, const Pendi
 
 // ---- watcher callbacks -----------------------------------------------------------------------
 
+namespace {
+
+// Whether `name` is <job name>_<4+ digits>.exr or .png: a published frame's file name.
+bool published_name(const std::string& name, const std::string& job_name) {
+  if (name.size() <= job_name.size() + 1 || name.compare(0, job_name.size(), job_name) != 0 ||
+      name[job_name.size()] != '_') {
+    return false;
+  }
+  const std::string rest = name.substr(job_name.size() + 1);
+  const auto dot = rest.find('.');
+  if (dot == std::string::npos || dot < 4) return false;
+  const std::string ext = rest.substr(dot);
+  return (ext == ".exr" || ext == ".png") &&
+         std::all_of(rest.begin(), rest.begin() + static_cast<long>(dot), ::isdigit);
+}
+
+// The file itself and, for a symlink, what it resolves to.
+std::vector<fs::path> identities(const fs::path& path) {
+  std::vector<fs::path> out{path};
+  std::error_code ec;
+  if (fs::is_symlink(fs::symlink_status(path, ec))) {
+    const fs::path real = fs::canonical(path, ec);
+    if (!ec) out.push_back(real);
+  }
+  return out;
+}
+
+}  // namespace
+
+bool Engine::own_output(const fs::path& path) const {
+  const fs::path dir = path.parent_path();
+  const std::string name = path.filename().string();
+  for (const auto& [id, j] : jobs_) {
+    if (fs::path(j->spec.output.dir) == dir && published_name(name, j->spec.name)) return true;
+  }
+  return false;
+}
+
 bool Engine::wanted(const FoundFile& f) {
+  const auto ids = identities(f.path);
   std::lock_guard lock(mu_);
   auto it = jobs_.find(f.job);
   if (it == jobs_.end() || it->second->deleted) return false;
+  for (const auto& p : ids) {
+    if (own_output(p)) return false;  // a frame the daemon published: never a pass
+  }
   const Job& job = *it->second;
   if (job.quarantine.blocks(f.frame, f.pass, f.size, f.mtime_ns)) return false;
   auto fr = job.frames.find(f.frame);
@@ -296,15 +451,19 @@ bool Engine::wanted(const FoundFile& f) {
 }
 
 void Engine::offer(const FoundFile& f) {
+  const auto ids = identities(f.path);
   std::lock_guard lock(mu_);
   auto it = jobs_.find(f.job);
   if (it == jobs_.end() || it->second->deleted) return;
+  for (const auto& p : ids) {
+    if (own_output(p)) return;
+  }
   auto& job = it->second;
   if (!job->quarantine.admit(f.frame, f.pass, f.size, f.mtime_ns)) return;
   Frame& fr = job->frames[f.frame];
   fr.rec.frame = f.frame;
   if (fr.has(f.pass)) return;
-  fr.pending[f.pass] = PendingPass{f.pass, f.path, f.size, f.mtime_ns, false};
+  fr.pending[f.pass] = PendingPass{f.pass, f.path, f.size, f.mtime_ns, false, 0};
   enqueue(*job, f.frame);
 }
 
@@ -346,6 +505,7 @@ protocol::JobSpec Engine::create_job(protocol::JobSpec spec) {
     }
     return again.string();
   };
+  protocol::validate_job_spec(spec);
   if (std::string why; !FrameProcessor::supports(spec.pipeline, why)) {
     throw ApiError(400, "invalid_field", why);
   }
@@ -353,6 +513,7 @@ protocol::JobSpec Engine::create_job(protocol::JobSpec spec) {
   spec.output.dir = confine(spec.output.dir, "output.dir");
   spec.created = protocol::now_rfc3339();
   auto job = std::make_shared<Job>();
+  std::unique_lock save(job->save_mu);  // before the engine's lock
   {
     std::lock_guard lock(mu_);
     if (!ready_) throw ApiError(503, "unavailable", "the daemon is shutting down");
@@ -374,8 +535,10 @@ protocol::JobSpec Engine::create_job(protocol::JobSpec spec) {
   } catch (const std::exception& e) {
     std::lock_guard lock(mu_);
     jobs_.erase(spec.id);
+    scheduler_->remove_job(spec.id);
     throw ApiError(500, "internal", std::string("cannot persist the job: ") + e.what());
   }
+  save.unlock();
   if (spec.watch) watcher_->add_job(spec.id, spec.watch->dir, spec.watch->pattern);
   events_.publish("job", {{"job", spec.id}, {"name", spec.name}, {"state", "created"}});
   spdlog::info("job {} ({}) created", spec.id, spec.name);
@@ -399,6 +562,11 @@ void Engine::delete_job(const std::string& id) {
   {
     std::lock_guard lock(mu_);
     job = find(id);
+  }
+  std::lock_guard save(job->save_mu);  // no job.json write is in flight
+  {
+    std::lock_guard lock(mu_);
+    if (job->deleted) throw ApiError(404, "not_found", "no job " + id);
     job->deleted = true;
     jobs_.erase(id);
     scheduler_->remove_job(id);
@@ -411,16 +579,25 @@ void Engine::delete_job(const std::string& id) {
 }
 
 protocol::JobSpec Engine::set_paused(const std::string& id, bool paused) {
-  protocol::JobSpec spec;
   std::shared_ptr<Job> job;
   {
     std::lock_guard lock(mu_);
     job = find(id);
+  }
+  // The save lock orders the writes of job.json as the changes are ordered in memory; the spec
+  // is serialised under the engine's lock.
+  std::lock_guard save(job->save_mu);
+  protocol::JobSpec spec;
+  std::string text;
+  {
+    std::lock_guard lock(mu_);
+    if (job->deleted) throw ApiError(404, "not_found", "no job " + id);
     job->spec.paused = paused;
     scheduler_->set_paused(id, paused);
     spec = job->spec;
+    text = protocol::to_json(spec).dump(2, ' ', false, json::error_handler_t::replace);
   }
-  store_.save_job(id, protocol::to_json(job->spec).dump(2));
+  store_.save_job(id, text);
   events_.publish("job",
                   {{"job", id}, {"name", spec.name}, {"state", paused ? "paused" : "resumed"}});
   return spec;
@@ -428,16 +605,30 @@ protocol::JobSpec Engine::set_paused(const std::string& id, bool paused) {
 
 void Engine::check_upload(const std::string& id, const std::string& frame,
                           const std::string& pass) const {
-  const long f = parse_frame(frame);
+  parse_frame(frame);
   if (!valid_pass_name(pass)) {
     throw ApiError(400, "invalid_pass", "pass must be 1-64 characters of A-Z a-z 0-9 _ -");
   }
   std::lock_guard lock(mu_);
-  const auto job = find(id);
-  auto fr = job->frames.find(f);
-  if (fr != job->frames.end() && fr->second.has(pass)) {
-    throw ApiError(409, "conflict", "frame " + frame + " already has pass " + pass);
+  find(id);
+}
+
+Engine::UploadFit Engine::fit(const Frame& fr, const std::string& pass, std::uint64_t hash) const {
+  if (fr.ingested.count(pass)) {
+    for (const auto& i : fr.rec.ingested) {
+      if (i.pass == pass) return i.content_hash == hash ? UploadFit::ingested : UploadFit::conflict;
+    }
+    return UploadFit::conflict;
   }
+  const PendingPass* p = nullptr;
+  if (auto it = fr.pending.find(pass); it != fr.pending.end()) p = &it->second;
+  if (auto it = fr.retry.find(pass); it != fr.retry.end()) p = &it->second.pass;
+  if (auto it = fr.inflight.find(pass); it != fr.inflight.end()) p = &it->second;
+  if (!p) return UploadFit::fresh;
+  // Waiting or being read: the same bytes uploaded again are the same request (idempotent);
+  // a watched file, an upload being stored (hash 0) or other bytes are a conflict.
+  return p->upload && p->content_hash != 0 && p->content_hash == hash ? UploadFit::queued
+                                                                      : UploadFit::conflict;
 }
 
 json Engine::upload(const std::string& id, const std::string& frame, const std::string& pass,
@@ -469,41 +660,77 @@ json Engine::upload_spooled(const std::string& id, const std::string& frame,
     std::lock_guard lock(mu_);
     renderer = find(id)->spec.renderer;
   }
-  std::uint64_t size = 0;
-  try {  // header check now (through the descriptor, within the limits), so a client sending
-         // garbage hears about it; the body is never read into memory here
-    const UniqueFd fd(open_regular_nofollow(spooled));
-    struct stat st {};
-    if (!fd || ::fstat(fd.get(), &st) != 0) {
-      throw ApiError(500, "internal", "the stored upload cannot be read back");
+  // The body is never read into memory: its size, content hash and header all come through one
+  // descriptor (within the read limits), so a client sending garbage hears about it now.
+  const UniqueFd fd(open_regular_nofollow(spooled));
+  struct stat st {};
+  if (!fd || ::fstat(fd.get(), &st) != 0) {
+    throw ApiError(500, "internal", "the stored upload cannot be read back");
+  }
+  const auto size = static_cast<std::uint64_t>(st.st_size);
+  if (size == 0) throw ApiError(400, "invalid_pass", "empty body");
+  const std::optional<std::uint64_t> hash = hash_fd(fd.get(), size);
+  if (!hash) throw ApiError(500, "internal", "the stored upload cannot be read back");
+  auto answer = [&](const char* status) {
+    return json{{"job", id}, {"frame", f}, {"pass", pass}, {"bytes", size}, {"status", status}};
+  };
+  auto settled = [&](UploadFit fit) -> std::optional<json> {
+    if (fit == UploadFit::conflict) {
+      throw ApiError(409, "conflict",
+                     "frame " + frame + " already has pass " + pass + " with other content");
     }
-    size = static_cast<std::uint64_t>(st.st_size);
-    if (size == 0) throw ApiError(400, "invalid_pass", "empty body");
+    if (fit == UploadFit::ingested) return answer("ingested");
+    if (fit == UploadFit::queued) return answer("queued");
+    return std::nullopt;
+  };
+  {
+    std::lock_guard lock(mu_);
+    auto job = find(id);
+    if (auto fr = job->frames.find(f); fr != job->frames.end()) {
+      if (auto done = settled(fit(fr->second, pass, *hash))) return *done;
+    }
+  }
+  try {
     ::fsync(fd.get());
     io::ReadOptions ro;
     ro.renderer = io::parse_renderer(renderer).value_or(io::Renderer::automatic);
     ro.limits = read_limits(config_.input, config_.limits.max_upload_bytes);
     io::probe_pass(io::FdSource(fd.get(), size), spooled.string(), ro);
-  } catch (const ApiError&) {
-    throw;
   } catch (const std::exception& e) {
     throw ApiError(400, "invalid_pass", std::string("not a readable pass: ") + e.what());
   }
-  std::lock_guard lock(mu_);
-  auto job = find(id);
-  Frame& fr = job->frames[f];
-  fr.rec.frame = f;
-  if (fr.has(pass)) {
-    throw ApiError(409, "conflict", "frame " + frame + " already has pass " + pass);
+  // Claim (frame, pass) under the lock, store it durably without the lock, then queue it.
+  std::shared_ptr<Job> job;
+  PendingPass claim{pass, {}, size, 0, true, 0};  // hash 0 while being stored: a conflict
+  {
+    std::lock_guard lock(mu_);
+    job = find(id);
+    Frame& fr = job->frames[f];
+    fr.rec.frame = f;
+    if (auto done = settled(fit(fr, pass, *hash))) return *done;
+    fr.inflight[pass] = claim;
   }
-  const fs::path path = store_.commit_upload(spooled, id, f, pass);
-  tmp.path.clear();
+  fs::path path;
+  try {
+    path = store_.commit_upload(spooled, id, f, pass);
+    tmp.path.clear();
+  } catch (const std::exception& e) {
+    std::lock_guard lock(mu_);
+    job->frames[f].inflight.erase(pass);
+    throw ApiError(500, "internal", std::string("cannot store the upload: ") + e.what());
+  }
   std::error_code ec;
-  fr.pending[pass] = PendingPass{pass, path, size, mtime_ns(path, ec), true};
-  job->quarantine.erase(f, pass);
-  enqueue(*job, f);
+  const std::int64_t mt = mtime_ns(path, ec);
+  {
+    std::lock_guard lock(mu_);
+    Frame& fr = job->frames[f];
+    fr.inflight.erase(pass);
+    fr.pending[pass] = PendingPass{pass, path, size, mt, true, *hash};
+    job->quarantine.erase(f, pass);
+    enqueue(*job, f);
+  }
   metrics_.inc("proden_uploads_total");
-  return {{"job", id}, {"frame", f}, {"pass", pass}, {"bytes", size}, {"status", "queued"}};
+  return answer("queued");
 }
 
 protocol::FrameStatus Engine::status(const Job& job, const Frame& fr) const {
@@ -530,7 +757,8 @@ protocol::FrameStatus Engine::status(const Job& job, const Frame& fr) const {
     s.outputs.push_back(base + ".exr");
     if (job.spec.output.png) s.outputs.push_back(base + ".png");
   }
-  s.pending = scheduler_->busy(job.spec.id, fr.rec.frame) || !fr.pending.empty();
+  s.pending =
+      scheduler_->busy(job.spec.id, fr.rec.frame) || !fr.pending.empty() || !fr.retry.empty();
   return s;
 }
 
@@ -539,7 +767,7 @@ std::vector<protocol::FrameStatus> Engine::frames(const std::string& id) const {
   auto job = find(id);
   std::vector<protocol::FrameStatus> out;
   for (const auto& [no, fr] : job->frames) {
-    if (fr.has_state || !fr.pending.empty() || scheduler_->busy(id, no)) {
+    if (fr.has_state || !fr.pending.empty() || !fr.retry.empty() || scheduler_->busy(id, no)) {
       out.push_back(status(*job, fr));
     }
   }
@@ -558,7 +786,51 @@ protocol::FrameStatus Engine::frame(const std::string& id, long frame) const {
 
 Engine::ImageFile Engine::image(const std::string& id, long frame, const std::string& format,
                                 const std::string& layer) {
-  PreviewCache::check_request(format, layer);
+  PreviewCache::Request r;
+  r.format = format;
+  r.layer = layer;
+  return image(id, frame, r);
+}
+
+json Engine::history(const std::string& id, long frame) const {
+  {
+    std::lock_guard lock(mu_);
+    auto job = find(id);
+    if (!job->frames.count(frame)) {
+      throw ApiError(404, "not_found", "job " + id + " has no frame " + std::to_string(frame));
+    }
+  }
+  return FrameHistory::load(store_.history_path(id, frame));
+}
+
+json Engine::job_history(const std::string& id) const {
+  std::vector<long> frames;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& [no, fr] : find(id)->frames) {
+      if (fr.published_version > 0) frames.push_back(no);
+    }
+  }
+  json out = json::array();
+  for (long f : frames) {
+    out.push_back({{"frame", f}, {"versions", FrameHistory::load(store_.history_path(id, f))}});
+  }
+  return out;
+}
+
+json Engine::quarantined(const std::string& id) const {
+  std::lock_guard lock(mu_);
+  json all = find(id)->quarantine.to_json();
+  for (auto& q : all) {  // the API's form (as in a frame's `quarantined`)
+    q.erase("size");
+    q.erase("mtime_ns");
+  }
+  return all;
+}
+
+Engine::ImageFile Engine::image(const std::string& id, long frame,
+                                const PreviewCache::Request& request) {
+  PreviewCache::check_request(request.format, request.layer);
   fs::path exr;
   std::uint64_t version = 0;
   {
@@ -571,7 +843,9 @@ Engine::ImageFile Engine::image(const std::string& id, long frame, const std::st
     version = it->second.published_version;
     exr = output_base(job->spec, frame).string() + ".exr";
   }
-  if (format == "exr" && layer.empty()) return {exr, "image/x-exr"};  // the API opens it confined
+  if (request.format == "exr" && request.layer.empty()) {  // the API opens it confined
+    return previews_.get(store_.cache_dir(id), exr, frame, version, request);
+  }
   // A rendition decodes the published EXR: open it beneath its root now, check its header within
   // the read limits, and let the decoder read exactly that descriptor (/proc/self/fd/N names it).
   FileError fe = FileError::none;
@@ -592,7 +866,7 @@ Engine::ImageFile Engine::image(const std::string& id, long frame, const std::st
     throw ApiError(500, "internal", e.what());
   }
   return previews_.get(store_.cache_dir(id), "/proc/self/fd/" + std::to_string(fd.get()), frame,
-                       version, format, layer);
+                       version, request);
 }
 
 }  // namespace proden::daemon

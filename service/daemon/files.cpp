@@ -6,18 +6,20 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <climits>
 #include <cstring>
 #include <deque>
 #include <stdexcept>
+#include <vector>
+
+#include "proden/hash.hpp"
 
 namespace proden::daemon {
 
 namespace fs = std::filesystem;
-
-namespace {
 
 void fsync_dir(const fs::path& dir) {
   const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY);
@@ -25,8 +27,6 @@ void fsync_dir(const fs::path& dir) {
   ::fsync(fd);
   ::close(fd);
 }
-
-}  // namespace
 
 void write_file_atomic(const fs::path& path, std::span<const std::uint8_t> data) {
   const fs::path dir = path.parent_path();
@@ -402,6 +402,21 @@ int open_regular_nofollow(const fs::path& p) {
     return -EINVAL;
   }
   return fd;
+}
+
+std::optional<std::uint64_t> hash_fd(int fd, std::uint64_t size) {
+  ByteHasher h(size);
+  std::vector<unsigned char> buf(std::size_t{1} << 20);
+  for (std::uint64_t at = 0; at < size;) {
+    const std::size_t want =
+        static_cast<std::size_t>(std::min<std::uint64_t>(buf.size(), size - at));
+    const ssize_t got = ::pread(fd, buf.data(), want, static_cast<off_t>(at));
+    if (got < 0 && errno == EINTR) continue;
+    if (got <= 0) return std::nullopt;
+    h.update({buf.data(), static_cast<std::size_t>(got)});
+    at += static_cast<std::uint64_t>(got);
+  }
+  return h.finish();
 }
 
 bool Roots::contains(const fs::path& real) const {

@@ -21,6 +21,8 @@ namespace proden::daemon {
 // Writes `data` to `path` atomically; throws std::runtime_error naming the path.
 void write_file_atomic(const std::filesystem::path& path, std::span<const std::uint8_t> data);
 void write_file_atomic(const std::filesystem::path& path, const std::string& text);
+// Makes the directory's entries (a rename or creation in it) durable.
+void fsync_dir(const std::filesystem::path& dir);
 
 // Reads a whole file; nullopt when it cannot be opened or read to the end.
 std::optional<std::vector<std::uint8_t>> read_file(const std::filesystem::path& path,
@@ -125,6 +127,10 @@ std::optional<FileBytes> read_fd(int fd, std::uint64_t max_bytes, FileError& err
 // Opens a regular file (not under the roots: the state directory) without following a symlink in
 // the last component or blocking on a FIFO; -errno on failure.
 int open_regular_nofollow(const std::filesystem::path& p);
+
+// hash_bytes (proden/hash.hpp) of the first `size` bytes of an open file, read in chunks (never
+// all in memory); nullopt when it cannot be read to `size`.
+std::optional<std::uint64_t> hash_fd(int fd, std::uint64_t size);
 
 std::int64_t mtime_ns(const std::filesystem::path& p, std::error_code& ec);
 

@@ -5,9 +5,11 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 
 #include "daemon/files.hpp"
+#include "daemon/frame_history.hpp"
 #include "daemon/pass_source.hpp"
 #include "daemon/processor.hpp"
 #include "proden/error.hpp"
@@ -73,23 +75,35 @@ FrameRun::Outcome FrameRun::run(Input in) {
             [](const PendingPass& a, const PendingPass& b) { return pass_less(a.pass, b.pass); });
   const fs::path state_file = store_.state_path(job_id, frame_no);
 
-  // 1. The frame's state: resident, persisted, or new.
+  // 1. The frame's state: resident, persisted (or the last good one), or new.
   try {
     if (!acc) {
       if (in.has_state) {
         const auto t0 = Clock::now();
-        acc = std::make_shared<FrameAccumulator>(store_.load_frame(job_id, frame_no));
+        JobStore::LoadedState loaded = store_.load_frame(job_id, frame_no);
+        acc = std::make_shared<FrameAccumulator>(std::move(loaded.acc));
         metrics_.observe("proden_stage_duration_seconds", "load", seconds_since(t0));
+        if (!loaded.damage.empty()) {
+          // Versions only increase: the next one follows the newest known.
+          loaded.record.version = std::max(loaded.record.version, rec.version);
+          rec = std::move(loaded.record);
+          const std::string msg = loaded.damage + "; recovered the last good state (version " +
+                                  std::to_string(rec.version) + ", " + std::to_string(rec.passes) +
+                                  " passes); the passes after it are read again";
+          spdlog::error("job {} frame {}: {}", job_id, frame_no, msg);
+          metrics_.inc("proden_errors_total", "corrupt_state");
+          publish_error(events_, job_id, frame_no, "", state_file.string(), "corrupt_state", msg,
+                        false);
+          hooks_.recovered(rec);
+          in.republish = false;
+        }
       } else {
         acc = std::make_shared<FrameAccumulator>();
       }
     }
   } catch (const std::exception& e) {
     spdlog::error("job {} frame {}: cannot load state: {}", job_id, frame_no, e.what());
-    metrics_.inc("proden_errors_total", "corrupt_state");
-    publish_error(events_, job_id, frame_no, "", state_file.string(), "corrupt_state", e.what(),
-                  false);
-    return {Result::state_unreadable, nullptr};
+    return {Result::state_unreadable, nullptr, false, e.what()};
   }
 
   // 2. Read and accumulate each pass; a pass that fails is reported and left out.
@@ -101,16 +115,23 @@ FrameRun::Outcome FrameRun::run(Input in) {
   if (in.has_state && rec.width > 0 && rec.height > 0)
     ro.frame_size = std::pair{rec.width, rec.height};
   std::vector<protocol::PassIdentity> accepted;
+  std::vector<PendingPass> accepted_passes;
   std::uint64_t accepted_bytes = 0;
   for (const auto& p : batch) {
     try {
       auto t0 = Clock::now();
       // Opened once, at the moment of use: beneath its root, within the read limits.
+      store_.fault_point("read", p.path);
       auto src = read_pending_pass(p, in.roots, ro);
       if (!src) continue;  // gone or changed: the watcher offers it again once it settles
       const std::uint64_t size = src->size;
       protocol::PassIdentity id{p.pass, p.path.string(), size, src->mtime_ns, src->content_hash};
       const Pass& pass = src->pass;
+      if (!std::isfinite(pass.spp) || pass.spp > protocol::kMaxPassSpp) {
+        throw InputError(InputErrorKind::invalid_value, p.path.string(),
+                         "samples per pixel " + std::to_string(pass.spp) +
+                             " is beyond the largest accepted (1048576)");
+      }
       metrics_.observe("proden_stage_duration_seconds", "read", seconds_since(t0));
       t0 = Clock::now();
       const AddResult r = acc->add(pass, p.pass);
@@ -119,15 +140,17 @@ FrameRun::Outcome FrameRun::run(Input in) {
         spdlog::warn("{}: {} non-finite pixel(s) dropped", p.path.string(), r.dropped_pixels);
       }
       accepted.push_back(id);
+      accepted_passes.push_back(p);
       accepted_bytes += size;
     } catch (...) {
       hooks_.failed(p, classify_current_exception());
     }
   }
 
-  if (accepted.empty() && !in.republish) return {Result::done, acc};
+  if (accepted.empty() && !in.republish) return {Result::done, acc, false, {}};
 
   // 3. Commit (persist), then publish.
+  bool committed = false;
   try {
     auto t0 = Clock::now();
     const FrameEstimate est = acc->estimate(FrameProcessor::estimate_options(spec.pipeline));
@@ -135,6 +158,19 @@ FrameRun::Outcome FrameRun::run(Input in) {
     const ProcessedFrame out = FrameProcessor::process(*acc, est, spec.pipeline);
     for (const auto& [stage, s] : out.stage_seconds) {
       metrics_.observe("proden_stage_duration_seconds", stage, s);
+    }
+    if (!accepted.empty() &&
+        (!std::isfinite(out.estimated_mse) || !std::isfinite(acc->total_spp()))) {
+      // These passes would poison the frame (non-finite statistics or estimates): refuse them
+      // and keep the persisted state (the resident one is dropped: it holds them).
+      std::string names;
+      for (const auto& a : accepted) names += (names.empty() ? "" : ", ") + a.pass;
+      for (const auto& p : accepted_passes) {
+        hooks_.failed(
+            p, {ErrorClass::bad_input, "invalid_value",
+                "accumulating pass(es) " + names + " would make the frame's estimates non-finite"});
+      }
+      return {Result::done, nullptr, false, {}};
     }
     if (!accepted.empty()) {
       rec.frame = frame_no;
@@ -154,15 +190,20 @@ FrameRun::Outcome FrameRun::run(Input in) {
       t0 = Clock::now();
       // The commit point: statistics and pass identities together, atomically.
       store_.save_frame(job_id, rec, *acc);
+      committed = true;
       metrics_.observe("proden_stage_duration_seconds", "persist", seconds_since(t0));
       hooks_.committed(rec, accepted);
       metrics_.inc("proden_passes_ingested_total", {}, static_cast<double>(accepted.size()));
       metrics_.inc("proden_ingested_bytes_total", {}, static_cast<double>(accepted_bytes));
-      for (const auto& p : batch) {
-        if (p.upload && std::any_of(accepted.begin(), accepted.end(),
-                                    [&](const auto& a) { return a.pass == p.pass; })) {
-          store_.remove_file(p.path);
-        }
+      // The accumulated uploads back the last good state until the next commit.
+      std::vector<PendingPass> uploads;
+      for (const auto& p : accepted_passes) {
+        if (p.upload) uploads.push_back(p);
+      }
+      try {
+        store_.keep_uploads(job_id, frame_no, uploads);
+      } catch (const std::exception& e) {  // committed: a restart cleans up what is left
+        spdlog::warn("job {} frame {}: keeping uploads: {}", job_id, frame_no, e.what());
       }
     }
     t0 = Clock::now();
@@ -179,33 +220,44 @@ FrameRun::Outcome FrameRun::run(Input in) {
       out_dir = UniqueFd(::open(spec.output.dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
     }
     const io::OutputDirectory bound(spec.output.dir, out_dir.get());
+    store_.fault_point("publish", output_base(spec, frame_no));
     const auto outputs =
         FrameProcessor::publish(out, output_base(spec, frame_no).string(), spec.output.png);
     store_.save_published(job_id, frame_no, rec.version);
     metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
     hooks_.published(rec.version, outputs);
     metrics_.inc("proden_frame_updates_total");
-    json data = {{"job", job_id},
+    // What the version is worth, for the accuracy-over-time chart (FrameHistory) and the event.
+    json entry = {
+        {"version", rec.version},
+        {"updated", rec.updated},
+        {"passes", rec.passes},
+        {"spp", rec.spp},
+        {"estimated_mse", rec.estimated_mse},
+        {"estimated_error", {{"mse", rec.estimated_mse}, {"source", rec.estimated_mse_source}}},
+        {"render_mse", out.render_mse}};
+    try {
+      FrameHistory::append(store_.history_path(job_id, frame_no), entry);
+    } catch (const std::exception& e) {  // a chart point lost; the version itself stands
+      spdlog::warn("job {} frame {}: history: {}", job_id, frame_no, e.what());
+    }
+    json data = entry;
+    data.update({{"job", job_id},
                  {"name", spec.name},
                  {"frame", frame_no},
-                 {"version", rec.version},
-                 {"passes", rec.passes},
-                 {"spp", rec.spp},
                  {"new_passes", accepted.size()},
-                 {"estimated_mse", rec.estimated_mse},
-                 {"updated", rec.updated},
-                 {"outputs", outputs}};
+                 {"outputs", outputs}});
     events_.publish("frame", data);
     spdlog::info("job {} frame {}: version {} ({} pass(es), {} spp)", job_id, frame_no, rec.version,
                  rec.passes, rec.spp);
-    return {Result::done, acc};
+    return {Result::done, acc, committed, {}};
   } catch (const std::exception& e) {
     // Persist or publish failed (disk full, permissions): drop the resident state so the next
-    // run reloads what is on disk; passes not persisted are offered again by the watcher.
+    // run reloads what is on disk; the engine retries the passes (or the publish) later.
     spdlog::error("job {} frame {}: {}", job_id, frame_no, e.what());
     metrics_.inc("proden_errors_total", "publish");
     publish_error(events_, job_id, frame_no, "", "", "publish", e.what(), false);
-    return {Result::failed, nullptr};
+    return {Result::failed, nullptr, committed, e.what()};
   }
 }
 

@@ -1,9 +1,11 @@
 // FrameRun: one run of one frame, and the exactly-once protocol in one place (docs/api.md,
 // "Ingestion rules"): read the batch's passes (each identified by path, size, mtime and content
 // hash), accumulate them, persist the statistics and the pass identities together in one atomic
-// file (the commit point), remove the accumulated uploads, publish the new version, record it as
-// published and announce it. A crash before the commit loses nothing (the passes are found
-// again); after it, the version is re-published on restart.
+// file (the commit point), keep the accumulated uploads aside (until the next commit: they back
+// the last good state), publish the new version, record it as published and announce it. A crash
+// before the commit loses nothing (the passes are found again); after it, the version is
+// re-published on restart. A damaged state falls back to the last good one (an error event says
+// so); nothing non-finite is ever committed.
 #pragma once
 
 #include <cstdint>
@@ -48,6 +50,9 @@ class FrameRun {
         committed;
     // Version `version` is published as `outputs`.
     std::function<void(std::uint64_t version, const std::vector<std::string>& outputs)> published;
+    // The persisted state was damaged and `record` (the last good state) replaced it: passes
+    // that are not in it must be read again.
+    std::function<void(const FrameRecord& record)> recovered;
   };
   FrameRun(JobStore& store, Metrics& metrics, EventHub& events, Hooks hooks);
 
@@ -66,12 +71,14 @@ class FrameRun {
   };
   enum class Result {
     done,              // ran to the end (some passes may have failed)
-    state_unreadable,  // the persisted state could not be loaded; nothing was read
+    state_unreadable,  // neither the state nor the last good one could be loaded; nothing read
     failed,            // persisting or publishing failed; the resident state must be dropped
   };
   struct Outcome {
     Result result = Result::done;
     std::shared_ptr<FrameAccumulator> acc;  // the state to keep resident (when done)
+    bool committed = false;                 // a new state was persisted
+    std::string error;                      // why it failed
   };
   Outcome run(Input in);
 

@@ -1,5 +1,6 @@
 #include "daemon/frame_state.hpp"
 
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <stdexcept>
@@ -15,7 +16,13 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '1'};
+constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '2'};
+constexpr char kMagicV1[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '1'};
+constexpr std::uint64_t kFileSeed = 0x66726d32;
+
+std::uint64_t file_hash(std::span<const std::uint8_t> b) {
+  return hash_bytes({b.data(), b.size()}, kFileSeed);
+}
 
 std::uint64_t text_hash(const std::string& s) {
   return hash_bytes({reinterpret_cast<const unsigned char*>(s.data()), s.size()}, 0x66726d);
@@ -68,26 +75,39 @@ FrameRecord frame_record_from_json(const json& j) {
 
 std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
                                             const FrameAccumulator& frame) {
-  const std::string text = to_json(record).dump();
+  for (const auto& [name, v] :
+       {std::pair{"spp", record.spp}, {"estimated_mse", record.estimated_mse}}) {
+    if (!std::isfinite(v)) {
+      throw std::invalid_argument(std::string("refusing to persist a non-finite ") + name);
+    }
+  }
+  // Invalid UTF-8 (a message quoting a file) is replaced, never a reason to fail the commit.
+  const std::string text = to_json(record).dump(-1, ' ', false, json::error_handler_t::replace);
   const std::vector<std::uint8_t> blob = frame.serialize();
-  const std::uint64_t n = text.size(), h = text_hash(text);
-  std::vector<std::uint8_t> out(sizeof(kMagic) + 16 + text.size() + blob.size());
-  std::uint8_t* at = out.data();
-  const auto put = [&at](const void* src, std::size_t len) {
-    std::memcpy(at, src, len);
-    at += len;
+  std::vector<std::uint8_t> out(sizeof kMagic + 32 + text.size() + blob.size());
+  std::size_t at = 0;
+  auto put = [&out, &at](const void* p, std::size_t n) {
+    if (n > 0) std::memcpy(out.data() + at, p, n);
+    at += n;
   };
+  auto put64 = [&put](std::uint64_t v) { put(&v, sizeof v); };
   put(kMagic, sizeof kMagic);
-  put(&n, sizeof n);
+  put64(text.size());
   put(text.data(), text.size());
-  put(&h, sizeof h);
+  put64(text_hash(text));
+  put64(blob.size());
   put(blob.data(), blob.size());
+  put64(file_hash(std::span<const std::uint8_t>(out).first(at)));
   return out;
 }
 
 void save_frame_state(const fs::path& path, const FrameRecord& record,
                       const FrameAccumulator& frame) {
-  write_file_atomic(path, frame_state_bytes(record, frame));
+  try {
+    write_file_atomic(path, frame_state_bytes(record, frame));
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(path.string() + ": " + e.what());
+  }
 }
 
 namespace {
@@ -95,7 +115,8 @@ namespace {
 FrameRecord parse_record(std::span<const std::uint8_t> b, const std::string& path,
                          std::size_t* blob_offset) {
   std::uint64_t n = 0;
-  if (b.size() < sizeof kMagic + 8 || std::memcmp(b.data(), kMagic, sizeof kMagic) != 0) {
+  if (b.size() < sizeof kMagic + 8 || (std::memcmp(b.data(), kMagic, sizeof kMagic) != 0 &&
+                                       std::memcmp(b.data(), kMagicV1, sizeof kMagic) != 0)) {
     throw std::runtime_error(path + ": not a proden frame state");
   }
   std::memcpy(&n, b.data() + sizeof kMagic, sizeof n);
@@ -134,13 +155,36 @@ FrameRecord load_frame_record(const fs::path& path) {
   return parse_record(head, path.string(), nullptr);
 }
 
-FrameAccumulator parse_frame_state(std::span<const std::uint8_t> bytes, const std::string& name,
+FrameAccumulator parse_frame_state(std::span<const std::uint8_t> all, const std::string& path,
                                    FrameRecord* record) {
+  std::span<const std::uint8_t> blob;
+  if (all.size() >= sizeof kMagic && std::memcmp(all.data(), kMagic, sizeof kMagic) == 0) {
+    // Version 2: the whole file's hash first, then the parts.
+    std::uint64_t h = 0;
+    if (all.size() < sizeof kMagic + 32) {
+      throw std::runtime_error(path + ": truncated frame state");
+    }
+    std::memcpy(&h, all.data() + all.size() - 8, sizeof h);
+    if (h != file_hash(all.first(all.size() - 8))) {
+      throw std::runtime_error(path + ": frame state checksum mismatch");
+    }
+  }
   std::size_t offset = 0;
-  FrameRecord r = parse_record(bytes, name, &offset);
-  FrameAccumulator acc = FrameAccumulator::deserialize(bytes.subspan(offset));
+  FrameRecord r = parse_record(all, path, &offset);
+  if (std::memcmp(all.data(), kMagic, sizeof kMagic) == 0) {
+    std::uint64_t m = 0;
+    if (offset + 16 > all.size()) throw std::runtime_error(path + ": truncated");
+    std::memcpy(&m, all.data() + offset, sizeof m);
+    if (m != all.size() - offset - 16) {
+      throw std::runtime_error(path + ": inconsistent frame state");
+    }
+    blob = all.subspan(offset + 8, m);
+  } else {
+    blob = all.subspan(offset);
+  }
+  FrameAccumulator acc = FrameAccumulator::deserialize(blob);
   if (acc.state_digest() != r.digest) {
-    throw std::runtime_error(name + ": accumulator does not match its record");
+    throw std::runtime_error(path + ": accumulator does not match its record");
   }
   if (record) *record = std::move(r);
   return acc;

@@ -2,8 +2,11 @@
 // contain, in ONE file written atomically (temp + fsync + rename), so that after a crash a pass
 // is either in both or in neither: counted exactly once.
 //
-// File: "PRDNFRS1", u64 n, n bytes of JSON record, u64 hash(JSON), then the accumulator blob
-// (FrameAccumulator::serialize, self-checksummed). The JSON part can be read without the blob.
+// File (version 2): "PRDNFRS2", u64 n, n bytes of JSON record, u64 hash(JSON), u64 m, m bytes of
+// accumulator blob (FrameAccumulator::serialize), u64 hash of every byte before it: one flipped
+// byte anywhere is detected. The JSON part can be read without the rest (start-up). Version 1
+// files ("PRDNFRS1": no m, no whole-file hash; the blob carries its own checksum) still load.
+// Non-finite numbers are never written (JSON would turn them into null).
 #pragma once
 
 #include <cstdint>

@@ -361,7 +361,11 @@ class HttpServer::Session : public std::enable_shared_from_this<Session>, public
 };
 
 HttpServer::HttpServer(const Config& config, Handler& handler, EventHub& events, Metrics& metrics)
-    : config_(config), handler_(handler), events_(events), metrics_(metrics), acceptor_(ioc_) {
+    : config_(config),
+      handler_(handler),
+      events_(events),
+      metrics_(metrics),
+      acceptor_(net::make_strand(ioc_)) {  // accept handlers and stop()'s close: one strand
   // The reserve is at most a quarter of all connections; streams never take it.
   auto& l = config_.limits;
   l.reserved_connections = std::clamp(l.reserved_connections, 0, l.max_connections / 4);
@@ -445,7 +449,7 @@ void HttpServer::run(int threads) {
 
 void HttpServer::stop() {
   if (stopped_.exchange(true)) return;
-  net::post(ioc_, [this] {
+  net::post(acceptor_.get_executor(), [this] {
     beast::error_code ec;
     acceptor_.close(ec);
   });

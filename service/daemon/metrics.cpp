@@ -18,6 +18,10 @@ Metrics::Metrics()
           "Duration of processing stages (read, accumulate, persist, process, publish)", "stage");
   declare("proden_queue_depth", "gauge", "Frames waiting for a worker");
   declare("proden_frames_in_progress", "gauge", "Frames being processed");
+  declare("proden_worker_threads", "gauge", "Workers that process frames");
+  declare(
+      "proden_worker_busy_seconds_total", "counter",
+      "Seconds workers spent processing frames (its rate / proden_worker_threads = utilisation)");
   declare("proden_jobs", "gauge", "Jobs known to the daemon");
   declare("proden_sse_clients", "gauge", "Connected Server-Sent Events clients");
   declare("proden_http_connections", "gauge", "Open HTTP connections");

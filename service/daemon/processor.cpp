@@ -7,6 +7,7 @@
 #include <memory>
 #include <stdexcept>
 
+#include "daemon/colour_map.hpp"
 #include "proden/io/image_writer.hpp"
 #include "proden/protocol/pipeline_spec.hpp"
 
@@ -52,6 +53,10 @@ ProcessedFrame FrameProcessor::process(const FrameAccumulator& frame, const Fram
   out.attributes = protocol::header_attributes(protocol::provenance_of(frame, estimate), out.run);
   out.estimated_mse = out.run.estimated_error.mse;
   out.estimated_mse_source = std::string(out.run.estimated_error.source);
+  double var_sum = 0.0;
+  for (float v : estimate.variance.data()) var_sum += static_cast<double>(v);
+  const std::size_t n = estimate.variance.data().size();
+  out.render_mse = n ? var_sum / static_cast<double>(n) : 0.0;
   if (!out.run.denoised.empty()) {
     const StageTimings& t = out.run.timings;
     out.stage_seconds = {{"denoise", t.denoise}, {"sure", t.sure},       {"mix", t.mixer},
@@ -118,23 +123,24 @@ Image read_layer(const std::string& exr_path, const std::string& layer) {
   return img;
 }
 
-void write_png_preview(const std::string& path, const Image& rgb) {
-  Image out(rgb.width(), rgb.height(), 3);
+void write_png(const std::string& path, const Rgb8& image) {
+  Image planar(image.width, image.height, 3);
+  const std::size_t n = planar.pixels();
   for (int c = 0; c < 3; ++c) {
-    auto src = rgb.plane(std::min(c, rgb.channels() - 1));
-    auto dst = out.plane(c);
-    for (std::size_t p = 0; p < src.size(); ++p) {
-      float x = std::isfinite(src[p]) ? std::max(src[p], 0.0f) : 0.0f;
-      x = x / (1.0f + x);
-      x = x <= 0.0031308f ? 12.92f * x : 1.055f * std::pow(x, 1.0f / 2.4f) - 0.055f;
-      dst[p] = std::clamp(x, 0.0f, 1.0f);
+    auto dst = planar.plane(c);
+    for (std::size_t p = 0; p < n; ++p) {
+      dst[p] = static_cast<float>(image.data[p * 3 + static_cast<std::size_t>(c)]) / 255.0f;
     }
   }
   std::vector<io::NamedChannel> channels;
-  io::add_layer(channels, "", out);
+  io::add_layer(channels, "", planar);
   io::WriteOptions w;
   w.compression = "";
-  io::write_image(path, out.width(), out.height(), channels, w);
+  io::write_image(path, planar.width(), planar.height(), channels, w);
+}
+
+void write_png_preview(const std::string& path, const Image& rgb) {
+  write_png(path, tone_map(rgb, 0.0));
 }
 
 }  // namespace proden::daemon

@@ -21,6 +21,7 @@ struct ProcessedFrame {
   protocol::Attributes attributes;  // the published EXR's header fields
   double estimated_mse = 0.0;       // = run.estimated_error, as the frame status reports it
   std::string estimated_mse_source;
+  double render_mse = 0.0;  // the plain render's own error estimate: mean Var[x] (the baseline)
   std::vector<std::pair<std::string, double>> stage_seconds;
 };
 
@@ -47,7 +48,12 @@ std::string known_layers();
 // Reads layer `layer` ("result" = R,G,B) of a published EXR; empty Image if absent.
 Image read_layer(const std::string& exr_path, const std::string& layer);
 
-// Tone-maps linear RGB for viewing (Reinhard x/(1+x) per channel, then sRGB) and writes a PNG.
+// Writes an 8-bit sRGB image as a PNG, atomically.
+struct Rgb8;
+void write_png(const std::string& path, const Rgb8& image);
+
+// Tone-maps linear RGB for viewing (colour_map.hpp's tone_map at exposure 0: Reinhard x/(1+x)
+// per channel, then sRGB) and writes a PNG.
 void write_png_preview(const std::string& path, const Image& rgb);
 
 }  // namespace proden::daemon

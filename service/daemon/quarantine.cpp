@@ -1,5 +1,8 @@
 #include "daemon/quarantine.hpp"
 
+#include <new>
+#include <system_error>
+
 #include "proden/error.hpp"
 
 namespace proden::daemon {
@@ -11,10 +14,14 @@ Failure classify_current_exception() {
     throw;
   } catch (const InputError& e) {
     return {ErrorClass::bad_input, std::string(to_string(e.kind())), e.reason()};
+  } catch (const std::bad_alloc&) {
+    return {ErrorClass::transient, "transient", "out of memory"};
+  } catch (const std::system_error& e) {  // also std::filesystem_error, std::ios_base::failure
+    return {ErrorClass::transient, "transient", e.what()};
   } catch (const std::exception& e) {
-    return {ErrorClass::internal, "unreadable", e.what()};
+    return {ErrorClass::internal, "internal", e.what()};
   } catch (...) {
-    return {ErrorClass::internal, "unreadable", "unknown error"};
+    return {ErrorClass::internal, "internal", "unknown exception"};
   }
 }
 
@@ -82,11 +89,15 @@ Quarantine Quarantine::from_json(const json& j) {
 }
 
 RetryPolicy::Action RetryPolicy::decide(const Failure& failure, int attempts, bool upload) const {
-  if (failure.cls == ErrorClass::bad_input && failure.kind == "unreadable" && !upload &&
-      attempts < max_attempts) {
-    return Action::retry;
-  }
+  if (failure.cls != ErrorClass::bad_input) return Action::retry;  // not the file's fault
+  if (failure.kind == "unreadable" && !upload && attempts < max_attempts) return Action::retry;
   return Action::quarantine;
+}
+
+std::chrono::milliseconds RetryPolicy::backoff(int attempts) const {
+  auto d = base;
+  for (int i = 1; i < attempts && d < cap; ++i) d *= 2;
+  return std::min(d, cap);
 }
 
 }  // namespace proden::daemon

@@ -1,8 +1,11 @@
 // Quarantine: the pass files a job refuses to read again, with why (persisted as the job's
 // quarantine.json, listed in a frame's `quarantined`), and the retry policy that decides, for a
-// pass that failed to read, whether it is retried or quarantined (docs/api.md, "Ingestion rules").
+// pass that failed to read, whether it is retried (after a back-off) or quarantined
+// (docs/api.md, "Ingestion rules"): only bad input is ever quarantined; a transient fault of the
+// machine (out of memory, an I/O error) or an internal error is retried.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <exception>
 #include <map>
@@ -26,7 +29,9 @@ struct Failure {
   std::string message;
 };
 
-// Classifies the exception being handled (call inside a catch block).
+// Classifies the exception being handled (call inside a catch block): proden::InputError is
+// bad_input (its kind); std::bad_alloc, std::system_error (file-system errors included) and
+// stream failures are transient; anything else is internal.
 Failure classify_current_exception();
 
 struct QuarantineRecord {
@@ -59,12 +64,17 @@ class Quarantine {
   std::map<Key, QuarantineRecord> records_;
 };
 
-// What to do with a pass whose read failed.
+// What to do with a pass whose read failed, and when to try again.
 struct RetryPolicy {
   int max_attempts = 3;  // failed reads of an unreadable watched file before it is quarantined
+  std::chrono::milliseconds base{1000};   // the first retry's delay
+  std::chrono::milliseconds cap{300000};  // the longest delay
   enum class Action { retry, quarantine };
-  // `attempts` counts this failure; `upload`: the pass is a stored upload.
+  // `attempts` counts this failure; `upload`: the pass is a stored upload (complete when stored,
+  // so an unreadable upload is final).
   Action decide(const Failure& failure, int attempts, bool upload) const;
+  // Delay before the retry after `attempts` failures: base * 2^(attempts-1), at most cap.
+  std::chrono::milliseconds backoff(int attempts) const;
 };
 
 }  // namespace proden::daemon

@@ -1,13 +1,22 @@
 #include "daemon/scheduler.hpp"
 
+#include <spdlog/spdlog.h>
+
 #include <algorithm>
-#include <chrono>
 #include <climits>
 
 namespace proden::daemon {
 
-Scheduler::Scheduler(int workers, Run run, Metrics* metrics)
-    : workers_count_(std::max(1, workers)), run_(std::move(run)), metrics_(metrics) {}
+const Clock& steady_clock() {
+  static const SteadyClock clock;
+  return clock;
+}
+
+Scheduler::Scheduler(int workers, Run run, Metrics* metrics, const Clock& clock)
+    : workers_count_(std::max(1, workers)),
+      run_(std::move(run)),
+      metrics_(metrics),
+      clock_(clock) {}
 
 Scheduler::~Scheduler() {
   stop();
@@ -17,6 +26,7 @@ void Scheduler::start() {
   std::lock_guard lock(mu_);
   stopping_ = false;
   for (int i = 0; i < workers_count_; ++i) workers_.emplace_back([this] { worker(); });
+  if (metrics_) metrics_->set("proden_worker_threads", workers_count_);
 }
 
 void Scheduler::request_stop() {
@@ -36,6 +46,10 @@ void Scheduler::stop() {
 }
 
 void Scheduler::push(const std::string& job, long frame, FrameState& st) {
+  if (st.delayed) {
+    delayed_.erase({st.due, {job, frame}});
+    st.delayed = false;
+  }
   st.queued = true;
   JobQueue& q = jobs_[job];
   q.ready.push_back(frame);
@@ -47,15 +61,42 @@ void Scheduler::push(const std::string& job, long frame, FrameState& st) {
   cv_.notify_one();
 }
 
-void Scheduler::enqueue(const std::string& job, long frame) {
+void Scheduler::schedule(const Key& key, FrameState& st, TimePoint due) {
+  if (st.delayed) {
+    if (st.due <= due) return;  // an earlier request wins
+    delayed_.erase({st.due, key});
+  }
+  st.delayed = true;
+  st.due = due;
+  delayed_.insert({due, key});
+  cv_.notify_one();  // a worker re-computes its wait
+}
+
+void Scheduler::promote_due() {
+  const TimePoint now = clock_.now();
+  while (!delayed_.empty() && delayed_.begin()->first <= now) {
+    const Key key = delayed_.begin()->second;
+    FrameState& st = frames_[key];
+    push(key.first, key.second, st);  // removes it from delayed_
+  }
+}
+
+void Scheduler::enqueue(const std::string& job, long frame, std::chrono::milliseconds delay) {
   std::lock_guard lock(mu_);
-  FrameState& st = frames_[{job, frame}];
+  const Key key{job, frame};
+  FrameState& st = frames_[key];
+  const TimePoint due = clock_.now() + delay;
   if (st.running) {
+    st.again_due = st.again ? std::min(st.again_due, due) : due;
     st.again = true;
     return;
   }
   if (st.queued) return;
-  push(job, frame, st);
+  if (delay.count() <= 0) {
+    push(job, frame, st);
+  } else {
+    schedule(key, st, due);
+  }
 }
 
 void Scheduler::set_paused(const std::string& job, bool paused) {
@@ -73,10 +114,11 @@ void Scheduler::remove_job(const std::string& job) {
   std::lock_guard lock(mu_);
   jobs_.erase(job);
   std::erase(rotation_, job);
+  std::erase_if(delayed_, [&](const auto& d) { return d.second.first == job; });
   for (auto it = frames_.lower_bound({job, LONG_MIN});
        it != frames_.end() && it->first.first == job;) {
     if (it->second.running) {
-      it->second.queued = it->second.again = false;
+      it->second.queued = it->second.again = it->second.delayed = false;
       ++it;
     } else {
       it = frames_.erase(it);
@@ -89,7 +131,9 @@ void Scheduler::remove_job(const std::string& job) {
 bool Scheduler::busy(const std::string& job, long frame) const {
   std::lock_guard lock(mu_);
   auto it = frames_.find({job, frame});
-  return it != frames_.end() && (it->second.queued || it->second.running || it->second.again);
+  if (it == frames_.end()) return false;
+  const FrameState& st = it->second;
+  return st.queued || st.running || st.again || st.delayed;
 }
 
 std::size_t Scheduler::queued() const {
@@ -124,8 +168,19 @@ void Scheduler::worker() {
     long frame = 0;
     {
       std::unique_lock lock(mu_);
-      cv_.wait(lock, [this] { return stopping_ || !rotation_.empty(); });
-      if (stopping_) return;
+      for (;;) {
+        promote_due();
+        if (stopping_) return;
+        if (!rotation_.empty()) break;
+        if (delayed_.empty()) {
+          cv_.wait(lock);
+        } else {
+          // Re-read the clock at least every 100 ms: a fake clock in tests moves on its own.
+          const auto wait = std::min<Clock::time_point::duration>(
+              delayed_.begin()->first - clock_.now(), std::chrono::milliseconds(100));
+          cv_.wait_for(lock, wait);
+        }
+      }
       job = rotation_.front();
       rotation_.pop_front();
       auto it = jobs_.find(job);
@@ -145,17 +200,48 @@ void Scheduler::worker() {
       ++running_;
       update_gauges();
     }
-    run_(job, frame);
+    // No exception leaves a worker: it is logged, counted, and the frame runs again after a
+    // back-off (the run function keeps its own state consistent).
+    bool crashed = false;
+    const auto t0 = std::chrono::steady_clock::now();
+    try {
+      run_(job, frame);
+    } catch (const std::exception& e) {
+      crashed = true;
+      spdlog::error("job {} frame {}: internal error: {}", job, frame, e.what());
+    } catch (...) {
+      crashed = true;
+      spdlog::error("job {} frame {}: internal error (unknown exception)", job, frame);
+    }
+    if (crashed && metrics_) metrics_->inc("proden_errors_total", "internal");
+    if (metrics_) {
+      metrics_->inc("proden_worker_busy_seconds_total", {},
+                    std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
     {
       std::lock_guard lock(mu_);
       --running_;
-      auto it = frames_.find({job, frame});
+      const Key key{job, frame};
+      auto it = frames_.find(key);
       if (it != frames_.end()) {
-        it->second.running = false;
-        if (it->second.again && jobs_.count(job)) {
-          it->second.again = false;
-          push(job, frame, it->second);
-        } else if (!it->second.queued) {
+        FrameState& st = it->second;
+        st.running = false;
+        if (crashed) {
+          const int n = std::min(++st.crashes, 9);  // 1 s, 2 s, ... 256 s
+          const TimePoint due = clock_.now() + std::chrono::seconds(1 << (n - 1));
+          st.again_due = st.again ? std::min(st.again_due, due) : due;
+          st.again = true;
+        } else {
+          st.crashes = 0;
+        }
+        if (st.again && jobs_.count(job)) {
+          st.again = false;
+          if (st.again_due <= clock_.now()) {
+            push(job, frame, st);
+          } else {
+            schedule(key, st, st.again_due);
+          }
+        } else if (!st.queued && !st.delayed && st.crashes == 0) {
           frames_.erase(it);
         }
       }

@@ -1,20 +1,25 @@
 // Scheduler: the fair queue of frames to run and the worker threads that run them. Frames of
 // all jobs share the workers round-robin by job; a frame is queued at most once and never runs
 // on two workers at once (work that arrives while it runs queues it again for when it ends); a
-// paused job keeps its queue but is skipped until resumed. Thread-safe; it never calls the run
-// function with its lock held, so callers may hold their own lock while calling it.
+// paused job keeps its queue but is skipped until resumed; a frame can be queued for later (retry
+// back-off, on the given Clock). Thread-safe; it never calls the run function with its lock held,
+// so callers may hold their own lock while calling it. No exception leaves a worker: a run that
+// throws is logged, counted (proden_errors_total{kind="internal"}) and retried after a back-off.
 #pragma once
 
+#include <chrono>
 #include <condition_variable>
 #include <deque>
 #include <functional>
 #include <map>
 #include <mutex>
+#include <set>
 #include <string>
 #include <thread>
 #include <utility>
 #include <vector>
 
+#include "daemon/clock.hpp"
 #include "daemon/metrics.hpp"
 
 namespace proden::daemon {
@@ -23,7 +28,7 @@ class Scheduler {
  public:
   using Run = std::function<void(const std::string& job, long frame)>;
   // `metrics` (optional) receives the gauges proden_queue_depth and proden_frames_in_progress.
-  Scheduler(int workers, Run run, Metrics* metrics = nullptr);
+  Scheduler(int workers, Run run, Metrics* metrics = nullptr, const Clock& clock = steady_clock());
   ~Scheduler();
   Scheduler(const Scheduler&) = delete;
   Scheduler& operator=(const Scheduler&) = delete;
@@ -34,19 +39,28 @@ class Scheduler {
   void request_stop();  // the first half of stop(): no frame starts after it returns
 
   // Queues (job, frame) unless it is queued already; if it is running, it runs again after.
-  void enqueue(const std::string& job, long frame);
+  // With a delay, the frame becomes ready only then (an earlier request wins).
+  void enqueue(const std::string& job, long frame,
+               std::chrono::milliseconds delay = std::chrono::milliseconds(0));
   void set_paused(const std::string& job, bool paused);
   void remove_job(const std::string& job);  // drops its queued frames (running ones finish)
 
-  bool busy(const std::string& job, long frame) const;  // queued or running
+  bool busy(const std::string& job, long frame) const;  // queued (now or later) or running
   std::size_t queued() const;
   int running() const;
-  // Blocks until nothing runs and no frame of an active job is queued; false on timeout.
+  // Blocks until nothing runs and no frame of an active job is ready (frames waiting for a
+  // later time do not count); false on timeout.
   bool wait_idle(int timeout_ms);
 
  private:
+  using Key = std::pair<std::string, long>;
+  using TimePoint = Clock::time_point;
   struct FrameState {
     bool queued = false, running = false, again = false;
+    bool delayed = false;
+    TimePoint due{};        // when delayed: when it becomes ready
+    TimePoint again_due{};  // when again: when it becomes ready after the run
+    int crashes = 0;        // consecutive runs that threw
   };
   struct JobQueue {
     std::deque<long> ready;
@@ -55,14 +69,18 @@ class Scheduler {
   };
   void worker();
   void push(const std::string& job, long frame, FrameState& st);  // mu_ held
+  void schedule(const Key& key, FrameState& st, TimePoint due);   // mu_ held
+  void promote_due();                                             // mu_ held
   void update_gauges();                                           // mu_ held
 
   int workers_count_;
   Run run_;
   Metrics* metrics_;
+  const Clock& clock_;
   mutable std::mutex mu_;
   std::condition_variable cv_, idle_cv_;
-  std::map<std::pair<std::string, long>, FrameState> frames_;
+  std::map<Key, FrameState> frames_;
+  std::set<std::pair<TimePoint, Key>> delayed_;  // frames waiting for their time
   std::map<std::string, JobQueue> jobs_;
   std::deque<std::string> rotation_;  // jobs with ready frames, served round-robin
   std::vector<std::thread> workers_;

@@ -10,58 +10,7 @@ namespace fs = std::filesystem;
 using namespace proden;
 using namespace proden::daemon;
 
-namespace {
-
-std::string read_all(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
-struct EngineRig {
-  test::TempDir t;
-  Config config;
-  Roots roots;
-  Metrics metrics;
-  EventHub hub{1000};
-  std::unique_ptr<Engine> engine;
-
-  EngineRig() {
-    fs::create_directories(t.path() / "allowed");
-    config.state_dir = (t.path() / "state").string();
-    config.allowed_roots = {(t.path() / "allowed").string()};
-    config.worker_threads = 2;
-    config.watch.inotify = false;
-    config.watch.poll_interval_ms = 100;
-    config.watch.settle_ms = 50;
-    config.watch.tick_ms = 20;
-    roots = Roots(config.allowed_roots);
-    start();
-  }
-  void start() {
-    engine = std::make_unique<Engine>(config, roots, metrics, hub);
-    engine->start();
-  }
-  void restart() {
-    engine->stop();
-    engine.reset();
-    start();
-  }
-  protocol::JobSpec create(const std::string& name, const std::string& denoiser = "none") {
-    protocol::JobSpec s;
-    s.name = name;
-    s.output.dir = (t.path() / "allowed" / (name + "_out")).string();
-    s.pipeline = protocol::PipelineSpec::from_json({{"denoiser", denoiser}});
-    s.spp = 4.0;  // the synthetic files do not say
-    return engine->create_job(s);
-  }
-  std::string pass_bytes(std::uint64_t seed, int w = 16, int h = 12) {
-    const fs::path p = t.path() / ("p" + std::to_string(seed) + ".exr");
-    test::write_pass(p, "x", seed, false, w, h);
-    return read_all(p);
-  }
-};
-
-}  // namespace
+using test::EngineRig;
 
 TEST_CASE("Engine: uploads become a published frame that survives a restart", "[daemon][engine]") {
   EngineRig rig;
@@ -115,12 +64,7 @@ TEST_CASE("Engine: a paused job keeps its uploads until resumed", "[daemon][engi
 TEST_CASE("Engine: watched files are ingested once", "[daemon][engine]") {
   EngineRig rig;
   const fs::path watch = rig.t.path() / "allowed" / "w";
-  protocol::JobSpec s;
-  s.name = "w";
-  s.output.dir = (rig.t.path() / "allowed" / "w_out").string();
-  s.pipeline = protocol::PipelineSpec::from_json({{"denoiser", "none"}});
-  s.watch = protocol::WatchSpec{watch.string(), "p{pass}_{frame}.exr"};
-  const auto job = rig.engine->create_job(s);
+  const auto job = rig.create("w", protocol::WatchSpec{watch.string(), "p{pass}_{frame}.exr"});
   test::write_pass(watch / "pa_0002.exr", "a", 4);
   test::write_pass(watch / "pb_0002.exr", "b", 5);
   for (int i = 0;

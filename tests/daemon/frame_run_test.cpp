@@ -27,6 +27,7 @@ struct Rig {
   std::vector<std::pair<PendingPass, Failure>> failed;
   std::vector<FrameRecord> committed;
   std::vector<std::uint64_t> published;
+  std::function<void(const FrameRecord&)> on_recovered = [](const FrameRecord&) {};
 
   Rig() { store.create_job(spec); }
 
@@ -41,6 +42,7 @@ struct Rig {
     h.published = [this](std::uint64_t v, const std::vector<std::string>&) {
       published.push_back(v);
     };
+    h.recovered = [this](const FrameRecord& g) { on_recovered(g); };
     FrameRun fr(store, metrics, hub, h);
     FrameRun::Input in;
     in.spec = spec;
@@ -77,7 +79,7 @@ TEST_CASE("FrameRun: passes are committed with their identities, then published"
   CHECK(rec.ingested[0].size == a.size);
   CHECK(rec.ingested[0].content_hash != 0);
   // The commit point: the state on disk holds exactly this.
-  CHECK(r.store.load_frame("j1", 1).state_digest() == rec.digest);
+  CHECK(r.store.load_frame("j1", 1).acc.state_digest() == rec.digest);
   CHECK(r.published == std::vector<std::uint64_t>{1});
   CHECK(fs::exists(output_base(r.spec, 1).string() + ".exr"));
   std::ifstream pub(r.store.published_path("j1", 1));
@@ -90,7 +92,7 @@ TEST_CASE("FrameRun: passes are committed with their identities, then published"
   CHECK(frames[0].data["new_passes"] == 2);
 }
 
-TEST_CASE("FrameRun: an accumulated upload is removed, a failed pass is reported",
+TEST_CASE("FrameRun: an accumulated upload is kept aside, a failed pass is reported",
           "[daemon][frame_run]") {
   Rig r;
   const auto up = test::write_pass(r.store.upload_dir("j1", 1) / "a.exr", "a", 1, true);
@@ -102,6 +104,7 @@ TEST_CASE("FrameRun: an accumulated upload is removed, a failed pass is reported
   const auto out = r.run({up, bp});
   REQUIRE(out.result == FrameRun::Result::done);
   CHECK_FALSE(fs::exists(up.path));
+  CHECK(fs::exists(r.store.kept_dir("j1", 1) / "a.exr"));
   REQUIRE(r.failed.size() == 1);
   CHECK(r.failed[0].first.pass == "b");
   CHECK(r.failed[0].second.kind == "unsupported_format");  // not EXR or HDR by its bytes
@@ -136,7 +139,7 @@ TEST_CASE("FrameRun: a failed persist commits nothing and keeps the last state",
   CHECK(out.result == FrameRun::Result::failed);
   CHECK(r.committed.size() == 1);
   CHECK(r.published.size() == 1);
-  CHECK(r.store.load_frame("j1", 1).state_digest() == first.digest);
+  CHECK(r.store.load_frame("j1", 1).acc.state_digest() == first.digest);
   const auto errors = r.events->of_type("error");
   REQUIRE(errors.size() == 1);
   CHECK(errors[0].data["kind"] == "publish");
@@ -147,18 +150,42 @@ TEST_CASE("FrameRun: an unreadable persisted state reads nothing", "[daemon][fra
   const auto a = test::write_pass(r.watched("a"), "a", 1);
   REQUIRE(r.run({a}).result == FrameRun::Result::done);
   const FrameRecord first = r.committed.at(0);
-  {
-    std::fstream f(r.store.state_path("j1", 1), std::ios::in | std::ios::out | std::ios::binary);
-    f.seekp(-20, std::ios::end);
-    f.put('\x5a');
-  }
+  test::flip_byte(r.store.state_path("j1", 1), -20);  // and there is no earlier state
   const auto b = test::write_pass(r.watched("b"), "b", 2);
   const auto out = r.run({b}, first, true);
   CHECK(out.result == FrameRun::Result::state_unreadable);
+  CHECK_THAT(out.error, Catch::Contains("checksum"));
   CHECK(r.committed.size() == 1);
+  CHECK(r.failed.empty());
+}
+
+TEST_CASE("FrameRun: a damaged state falls back to the last good one, and says so",
+          "[daemon][frame_run]") {
+  Rig r;
+  const auto a = test::write_pass(r.watched("a"), "a", 1);
+  REQUIRE(r.run({a}).result == FrameRun::Result::done);
+  const auto b = test::write_pass(r.store.upload_dir("j1", 1) / "b.exr", "b", 2, true);
+  REQUIRE(r.run({b}, r.committed.at(0), true).result == FrameRun::Result::done);
+  const FrameRecord second = r.committed.at(1);
+  CHECK_FALSE(fs::exists(b.path));  // kept aside, backing the last good state
+  CHECK(fs::exists(r.store.kept_dir("j1", 1) / "b.exr"));
+  test::flip_byte(r.store.state_path("j1", 1), -100);
+  std::vector<FrameRecord> recovered;
+  r.on_recovered = [&](const FrameRecord& g) { recovered.push_back(g); };
+  const auto c = test::write_pass(r.watched("c"), "c", 3);
+  const auto out = r.run({c}, second, true);
+  REQUIRE(out.result == FrameRun::Result::done);
+  REQUIRE(recovered.size() == 1);
+  CHECK(recovered[0].passes == 1);   // the state before b
+  CHECK(recovered[0].version == 2);  // versions never go back
+  REQUIRE(r.committed.size() == 3);
+  CHECK(r.committed[2].passes == 2);  // a + c; b is for the engine to read again
+  CHECK(r.committed[2].version == 3);
   const auto errors = r.events->of_type("error");
   REQUIRE(errors.size() == 1);
   CHECK(errors[0].data["kind"] == "corrupt_state");
+  CHECK_THAT(errors[0].data["message"].get<std::string>(), Catch::Contains("last good state"));
+  CHECK(fs::exists(r.store.job_dir("j1") / "frames" / "1.corrupt"));  // kept for inspection
 }
 
 TEST_CASE("FrameRun: a persisted but unpublished version is published again",

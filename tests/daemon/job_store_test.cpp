@@ -3,6 +3,7 @@
 
 #include <fstream>
 #include <set>
+#include <system_error>
 
 #include "daemon/job_store.hpp"
 #include "test_support.hpp"
@@ -46,7 +47,7 @@ FrameRecord record_of(long frame, const FrameAccumulator& acc, const std::string
   return r;
 }
 
-auto ignore_corrupt = [](const std::string&) {};
+auto ignore_corrupt = [](long, const std::string&) {};
 
 }  // namespace
 
@@ -73,7 +74,7 @@ TEST_CASE("JobStore: frame state and published version round-trip", "[daemon][jo
   const FrameAccumulator acc = one_pass_frame(1);
   store.save_frame("j1", record_of(7, acc, "00"), acc);
   store.save_published("j1", 7, 1);
-  CHECK(store.load_frame("j1", 7).state_digest() == acc.state_digest());
+  CHECK(store.load_frame("j1", 7).acc.state_digest() == acc.state_digest());
   const auto loaded = store.load_job(store.job_dir("j1"), ignore_corrupt);
   REQUIRE(loaded);
   REQUIRE(loaded->frames.size() == 1);
@@ -97,7 +98,7 @@ TEST_CASE("JobStore: stored uploads are recovered, accumulated ones cleaned up",
   REQUIRE(loaded);
   std::set<std::pair<long, std::string>> got;
   for (const auto& [frame, p] : loaded->uploads) {
-    got.insert({frame, p.pass});
+    got.insert(std::make_pair(frame, p.pass));
     CHECK(p.upload);
     CHECK(p.size == 1);
   }
@@ -113,11 +114,12 @@ TEST_CASE("JobStore: an unreadable frame state is moved aside and reported",
   store.create_job(spec_for(t, "j1"));
   touch(store.state_path("j1", 5), "not a state file");
   int corrupt = 0;
-  const auto loaded = store.load_job(store.job_dir("j1"), [&](const std::string&) { ++corrupt; });
+  const auto loaded =
+      store.load_job(store.job_dir("j1"), [&](long, const std::string&) { ++corrupt; });
   REQUIRE(loaded);
   CHECK(corrupt == 1);
   CHECK(loaded->frames.empty());
-  CHECK(fs::exists(fs::path(store.state_path("j1", 5)).replace_extension(".corrupt")));
+  CHECK(fs::exists(store.state_path("j1", 5).string() + ".corrupt"));
 }
 
 TEST_CASE("JobStore: temp files of interrupted writes are removed at load", "[daemon][job_store]") {
@@ -146,12 +148,12 @@ TEST_CASE("JobStore: the write hook sees each write and can fail it", "[daemon][
   const FrameAccumulator acc = one_pass_frame(3);
   store.save_frame("j1", record_of(1, acc, "00"), acc);
   store.save_published("j1", 1, 1);
-  CHECK(ops == std::vector<std::string>{"job", "state", "published"});
+  CHECK(ops == std::vector<std::string>{"job", "fsync_dir", "state", "published"});
   fail_state = true;
   const FrameAccumulator acc2 = one_pass_frame(4);
   CHECK_THROWS_WITH(store.save_frame("j1", record_of(1, acc2, "00"), acc2),
                     Catch::Contains("disk full"));
-  CHECK(store.load_frame("j1", 1).state_digest() == acc.state_digest());  // old state intact
+  CHECK(store.load_frame("j1", 1).acc.state_digest() == acc.state_digest());  // old state intact
 }
 
 TEST_CASE("JobStore: an upload is spooled, then committed under its pass name",
@@ -168,4 +170,78 @@ TEST_CASE("JobStore: an upload is spooled, then committed under its pass name",
   std::ifstream in(final_path);
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   CHECK(text == "body bytes");
+}
+
+TEST_CASE("JobStore: a job whose job.json is missing but which holds state is kept",
+          "[daemon][job_store][regression]") {
+  test::TempDir t;
+  JobStore store(t.path() / "state");
+  store.create_job(spec_for(t, "j1"));
+  const FrameAccumulator acc = one_pass_frame(5);
+  store.save_frame("j1", record_of(1, acc, "00"), acc);
+  touch(store.upload_dir("j1", 2) / "a.exr");
+  fs::remove(store.job_dir("j1") / "job.json");
+  CHECK_THROWS(store.load_job(store.job_dir("j1"), ignore_corrupt));
+  CHECK(fs::exists(store.state_path("j1", 1)));
+  CHECK(fs::exists(store.upload_dir("j1", 2) / "a.exr"));
+}
+
+TEST_CASE("JobStore: a job.json that cannot be opened leaves the job alone",
+          "[daemon][job_store][regression]") {
+  test::TempDir t;
+  JobStore store(t.path() / "state", [](const std::string& op, const fs::path&) {
+    if (op == "open_job") throw std::system_error(EMFILE, std::generic_category(), "open");
+  });
+  store.create_job(spec_for(t, "j1"));
+  CHECK_THROWS(store.load_job(store.job_dir("j1"), ignore_corrupt));
+  CHECK(fs::exists(store.job_dir("j1") / "job.json"));
+}
+
+TEST_CASE("JobStore: an interrupted job creation (nothing but empty directories) is removed",
+          "[daemon][job_store]") {
+  test::TempDir t;
+  JobStore store(t.path() / "state");
+  fs::create_directories(store.job_dir("j2") / "frames");
+  fs::create_directories(store.job_dir("j2") / "uploads");
+  CHECK_FALSE(store.load_job(store.job_dir("j2"), ignore_corrupt));
+  CHECK_FALSE(fs::exists(store.job_dir("j2")));
+}
+
+TEST_CASE("JobStore: an upload's directory entries are durable before it is acknowledged",
+          "[daemon][job_store][regression]") {
+  test::TempDir t;
+  std::vector<std::pair<std::string, fs::path>> ops;
+  JobStore store(t.path() / "state",
+                 [&](const std::string& op, const fs::path& p) { ops.emplace_back(op, p); });
+  store.create_job(spec_for(t, "j1"));
+  ops.clear();
+  const fs::path tmp = store.spool_upload("j1", 2, "07", "body");
+  const fs::path final_path = store.commit_upload(tmp, "j1", 2, "07");
+  // The new frame directory's entry in uploads/ is synced, and the final name's entry after the
+  // rename.
+  auto at = [&](const std::string& op, const fs::path& p) {
+    for (std::size_t i = 0; i < ops.size(); ++i) {
+      if (ops[i].first == op && ops[i].second == p) return static_cast<long>(i);
+    }
+    return -1L;
+  };
+  CHECK(at("fsync_dir", store.job_dir("j1") / "uploads") >= 0);
+  const long renamed = at("upload", final_path);
+  const long synced = at("fsync_dir", store.upload_dir("j1", 2));
+  REQUIRE(renamed >= 0);
+  CHECK(synced > renamed);
+}
+
+TEST_CASE("JobStore: a record quoting invalid UTF-8 is still saved and read back",
+          "[daemon][job_store]") {
+  test::TempDir t;
+  JobStore store(t.path() / "state");
+  store.create_job(spec_for(t, "j1"));
+  const FrameAccumulator acc = one_pass_frame(6);
+  FrameRecord r = record_of(1, acc, "00");
+  r.ingested[0].source = std::string("/w/\xff\xfe/00.exr");  // bytes from a file system
+  REQUIRE_NOTHROW(store.save_frame("j1", r, acc));
+  const auto back = store.load_frame("j1", 1);
+  CHECK(back.acc.state_digest() == acc.state_digest());
+  CHECK(back.record.ingested.at(0).pass == "00");
 }

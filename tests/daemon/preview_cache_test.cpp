@@ -1,6 +1,8 @@
 // PreviewCache: layer renditions of a published EXR, made once per version.
 #include <catch2/catch.hpp>
 
+#include <map>
+
 #include "daemon/preview_cache.hpp"
 #include "daemon/processor.hpp"
 #include "proden/io/image_writer.hpp"
@@ -76,4 +78,127 @@ TEST_CASE("PreviewCache: a layer the frame lacks is 404", "[daemon][preview]") {
   const fs::path exr = write_published(t);
   PreviewCache pc;
   CHECK(status_of([&] { pc.get(t.path() / "cache", exr, 1, 1, "png", "alpha"); }) == 404);
+}
+
+namespace {
+
+// A published EXR with every layer the pipeline writes (alpha a gradient, errors positive).
+fs::path write_full(const test::TempDir& t) {
+  const int w = 16, h = 8;
+  std::map<std::string, Image> layers;
+  for (const char* n : {"", "render.", "variance.", "denoised.", "alpha.", "sure."}) {
+    layers[n] = Image(w, h, 3);
+  }
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      for (int c = 0; c < 3; ++c) {
+        layers[""].at(x, y, c) = 0.5f;
+        layers["render."].at(x, y, c) = 0.5f + 0.01f * static_cast<float>(x);
+        layers["denoised."].at(x, y, c) = 0.5f;
+        layers["variance."].at(x, y, c) = 1e-4f * static_cast<float>(1 + x);
+        layers["sure."].at(x, y, c) = 1e-5f;
+        layers["alpha."].at(x, y, c) = static_cast<float>(x) / static_cast<float>(w - 1);
+      }
+    }
+  }
+  std::vector<io::NamedChannel> ch;
+  for (const auto& [n, img] : layers) io::add_layer(ch, n, img);
+  const fs::path p = t.path() / "full_0001.exr";
+  io::write_image(p.string(), w, h, ch);
+  return p;
+}
+
+PreviewCache::Request png(const std::string& layer) {
+  PreviewCache::Request r;
+  r.format = "png";
+  r.layer = layer;
+  return r;
+}
+
+std::string header(const PreviewCache::File& f, const std::string& name) {
+  for (const auto& [k, v] : f.headers) {
+    if (k == name) return v;
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST_CASE("PreviewCache: alpha and errors are colour-mapped with their range",
+          "[daemon][preview]") {
+  test::TempDir t;
+  const fs::path exr = write_full(t);
+  PreviewCache pc;
+  PreviewCache::Request r = png("alpha");
+  const auto alpha = pc.get(t.path() / "cache", exr, 1, 1, r);
+  CHECK(header(alpha, "X-Proden-Colormap") == "viridis");
+  CHECK(header(alpha, "X-Proden-Scale") == "linear");
+  CHECK(header(alpha, "X-Proden-Range") == "0 1");
+  const Image a = read_layer(alpha.path.string(), "result");  // the PNG, as RGB in [0,1]
+  REQUIRE(a.width() == 16);
+  // viridis: the left edge (alpha 0) is dark purple, the right edge (alpha 1) yellow
+  CHECK(a.at(0, 0, 0) == Approx(0x44 / 255.0f).margin(1e-3));
+  CHECK(a.at(0, 0, 2) == Approx(0x54 / 255.0f).margin(1e-3));
+  CHECK(a.at(15, 0, 0) == Approx(0xfd / 255.0f).margin(1e-3));
+  CHECK(a.at(15, 0, 1) == Approx(0xe7 / 255.0f).margin(1e-3));
+
+  r.layer = "variance";
+  const auto var = pc.get(t.path() / "cache", exr, 1, 1, r);
+  CHECK(header(var, "X-Proden-Colormap") == "magma");
+  CHECK(header(var, "X-Proden-Scale") == "log");
+  CHECK(header(var, "X-Proden-Range") == "0.0001 0.01");
+  const Image v = read_layer(var.path.string(), "result");
+  CHECK(v.at(15, 0, 0) > v.at(0, 0, 0) + 0.2f);  // not black: brighter where the variance is larger
+  // Served again from the cache, with the same headers.
+  CHECK(header(pc.get(t.path() / "cache", exr, 1, 1, r), "X-Proden-Range") == "0.0001 0.01");
+  r.range = std::pair{1e-6, 1.0};
+  CHECK(header(pc.get(t.path() / "cache", exr, 1, 1, r), "X-Proden-Range") == "1e-06 1");
+
+  const auto err = pc.get(t.path() / "cache", exr, 1, 1, png("error"));
+  CHECK(header(err, "X-Proden-Scale") == "log");
+}
+
+TEST_CASE("PreviewCache: thumbnails and exposures are separate renditions", "[daemon][preview]") {
+  test::TempDir t;
+  const fs::path exr = write_full(t);
+  PreviewCache pc;
+  PreviewCache::Request r = png("render");
+  const auto full = pc.get(t.path() / "cache", exr, 1, 1, r);
+  r.size = 8;
+  const auto thumb = pc.get(t.path() / "cache", exr, 1, 1, r);
+  CHECK(thumb.path != full.path);
+  CHECK(thumb.etag != full.etag);
+  CHECK(read_layer(thumb.path.string(), "result").width() == 8);
+  CHECK(read_layer(thumb.path.string(), "result").height() == 4);
+  r.size = 0;
+  r.exposure = 2.0;
+  const auto bright = pc.get(t.path() / "cache", exr, 1, 1, r);
+  CHECK(read_layer(bright.path.string(), "result").at(0, 0, 0) >
+        read_layer(full.path.string(), "result").at(0, 0, 0) + 0.05f);
+  // A new version clears every rendition of the old one.
+  pc.get(t.path() / "cache", exr, 1, 2, r);
+  CHECK_FALSE(fs::exists(thumb.path));
+  CHECK_FALSE(fs::exists(full.path));
+}
+
+TEST_CASE("PreviewCache: query parameters are validated", "[daemon][preview]") {
+  using Q = std::map<std::string, std::string>;
+  const auto r = PreviewCache::Request::from_query(
+      Q{{"format", "png"}, {"layer", "sure"}, {"size", "160"}, {"range", "1e-6,1e-2"}});
+  CHECK(r.size == 160);
+  CHECK(r.range->first == Approx(1e-6));
+  CHECK(PreviewCache::Request::from_query(Q{{"format", "png"}, {"exposure", "1.1"}}).exposure ==
+        Approx(1.0));  // quarter-EV steps
+  CHECK(PreviewCache::Request::from_query(Q{}).format == "exr");
+  for (const Q& bad :
+       {Q{{"format", "png"}, {"size", "7"}}, Q{{"format", "png"}, {"size", "1e9"}},
+        Q{{"format", "png"}, {"size", "16.5"}}, Q{{"format", "exr"}, {"exposure", "1"}},
+        Q{{"format", "png"}, {"exposure", "nan"}}, Q{{"format", "png"}, {"exposure", "99"}},
+        Q{{"format", "png"}, {"layer", "result"}, {"range", "0,1"}},
+        Q{{"format", "png"}, {"layer", "sure"}, {"range", "0,1"}},
+        Q{{"format", "png"}, {"layer", "alpha"}, {"range", "1,0"}},
+        Q{{"format", "png"}, {"layer", "alpha"}, {"range", "x"}},
+        Q{{"format", "png"}, {"layer", "bogus"}}}) {
+    CHECK(status_of([&] { PreviewCache::Request::from_query(bad); }) == 400);
+  }
 }

@@ -2,7 +2,9 @@
 // the retry policy.
 #include <catch2/catch.hpp>
 
+#include <filesystem>
 #include <new>
+#include <system_error>
 
 #include "daemon/quarantine.hpp"
 #include "proden/error.hpp"
@@ -59,7 +61,40 @@ TEST_CASE("Quarantine: failures are classified", "[daemon][quarantine]") {
   CHECK(bad.message == "8x8 vs 4x4");
   const Failure other = classify([] { throw std::logic_error("bug"); });
   CHECK(other.cls == ErrorClass::internal);
+  CHECK(other.kind == "internal");
   CHECK(other.message == "bug");
+  CHECK(classify([] { throw std::bad_alloc(); }).cls == ErrorClass::transient);
+  CHECK(classify([] { throw std::system_error(EIO, std::generic_category()); }).cls ==
+        ErrorClass::transient);
+  CHECK(classify([] {
+          throw std::filesystem::filesystem_error("read",
+                                                  std::make_error_code(std::errc::io_error));
+        }).cls == ErrorClass::transient);
+  CHECK(classify([] { throw 42; }).cls == ErrorClass::internal);
+}
+
+TEST_CASE("RetryPolicy: transient and internal failures are retried, never quarantined",
+          "[daemon][quarantine]") {
+  RetryPolicy policy;
+  policy.max_attempts = 2;
+  for (const auto cls : {ErrorClass::transient, ErrorClass::internal}) {
+    const Failure f{cls, "transient", "EIO"};
+    for (int attempts : {1, 2, 10, 1000}) {
+      CHECK(policy.decide(f, attempts, false) == RetryPolicy::Action::retry);
+      CHECK(policy.decide(f, attempts, true) == RetryPolicy::Action::retry);
+    }
+  }
+}
+
+TEST_CASE("RetryPolicy: the back-off doubles up to its cap", "[daemon][quarantine]") {
+  RetryPolicy policy;
+  policy.base = std::chrono::milliseconds(1000);
+  policy.cap = std::chrono::milliseconds(5000);
+  CHECK(policy.backoff(1).count() == 1000);
+  CHECK(policy.backoff(2).count() == 2000);
+  CHECK(policy.backoff(3).count() == 4000);
+  CHECK(policy.backoff(4).count() == 5000);
+  CHECK(policy.backoff(1000).count() == 5000);
 }
 
 TEST_CASE("RetryPolicy: unreadable watched files get max_attempts chances",

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "daemon/scheduler.hpp"
+#include "daemon_support.hpp"
 
 using namespace proden::daemon;
 
@@ -137,4 +138,49 @@ TEST_CASE("Scheduler: stop lets the running frame finish and leaves the queue",
   s.stop();
   CHECK(log.get() == std::vector<std::string>{"a1"});
   CHECK(s.busy("a", 2));
+}
+
+TEST_CASE("Scheduler: an exception never leaves a worker; the frame is retried later",
+          "[daemon][scheduler][regression]") {
+  Log log;
+  proden::test::FakeClock clock;
+  Metrics metrics;
+  std::atomic<int> calls{0};
+  Scheduler s(
+      1,
+      [&](const std::string& j, long f) {
+        log.add(j, f);
+        if (calls++ == 0) throw std::runtime_error("escaped (simulated)");
+      },
+      &metrics, clock);
+  s.start();
+  s.enqueue("a", 1);
+  REQUIRE(s.wait_idle(10000));
+  CHECK(log.get().size() == 1);
+  CHECK(s.busy("a", 1));  // waiting for its retry
+  CHECK(metrics.render().find("proden_errors_total{kind=\"internal\"} 1") != std::string::npos);
+  s.enqueue("b", 1);  // the worker still works
+  REQUIRE(proden::test::eventually([&] { return log.get().size() == 2; }));
+  clock.advance(std::chrono::minutes(10));
+  REQUIRE(proden::test::eventually([&] { return log.get().size() == 3; }));
+  CHECK(log.get() == std::vector<std::string>{"a1", "b1", "a1"});
+}
+
+TEST_CASE("Scheduler: a frame queued for later runs when its time comes", "[daemon][scheduler]") {
+  Log log;
+  proden::test::FakeClock clock;
+  Scheduler s(
+      1, [&](const std::string& j, long f) { log.add(j, f); }, nullptr, clock);
+  s.start();
+  s.enqueue("a", 1, std::chrono::seconds(30));
+  s.enqueue("a", 2);
+  REQUIRE(proden::test::eventually([&] { return log.get().size() == 1; }));
+  std::this_thread::sleep_for(std::chrono::milliseconds(250));
+  CHECK(log.get() == std::vector<std::string>{"a2"});
+  CHECK(s.busy("a", 1));
+  clock.advance(std::chrono::seconds(31));
+  REQUIRE(proden::test::eventually([&] { return log.get().size() == 2; }));
+  s.enqueue("a", 3, std::chrono::seconds(30));
+  s.enqueue("a", 3);  // now wins over later
+  REQUIRE(proden::test::eventually([&] { return log.get().size() == 3; }));
 }

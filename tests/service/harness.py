@@ -16,11 +16,14 @@ SAMPLES = os.environ.get("PRODEN_SAMPLES_DIR", "samples")
 CORNELL = [os.path.join(SAMPLES, "renders", "cornell", "pass_%02d.exr" % i) for i in range(8)]
 
 FAST_WATCH = {"poll_interval_ms": 400, "settle_ms": 250, "tick_ms": 50, "max_attempts": 2}
+# A ThreadSanitizer-built daemon (PRODEN_TSAN) runs the pipeline several times slower: waits for
+# results stretch by this factor.
+SLOWDOWN = 5.0 if os.environ.get("PRODEN_TSAN") else 1.0
 
 
 def wait_until(pred, timeout=20.0, interval=0.05, what="condition"):
     """Polls pred() until it returns a truthy value (returned) or the timeout passes (raises)."""
-    deadline = time.monotonic() + timeout
+    deadline = time.monotonic() + timeout * SLOWDOWN
     while True:
         v = pred()
         if v:
@@ -41,6 +44,11 @@ class Daemon:
         self.token = token
         self.config = dict(config or {})
         self.config.setdefault("watch", dict(FAST_WATCH))
+        if os.environ.get("PRODEN_TSAN"):
+            # Under ThreadSanitizer the pipeline runs on its frame's worker thread alone: TBB's
+            # scheduler is not instrumented (its hand-overs would be reported as races) and
+            # TSan makes its spinning workers very slow. The daemon's own threads are all there.
+            self.config.setdefault("pipeline_threads", 1)
         self.extra = list(extra)
         self.proc = None
         self.url = None
@@ -60,6 +68,7 @@ class Daemon:
             os.chmod(tf, 0o600)
             args += ["--token-file", tf]
         self.logf = open(self.log, "ab")
+        self.log_start = self.logf.tell()
         self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=self.logf)
         deadline = time.monotonic() + timeout
         line = b""
@@ -98,7 +107,18 @@ class Daemon:
             self.proc.stdout.close()
             self.logf.close()
         self.proc = None
+        self.check_sanitizer_reports()
         return rc
+
+    def check_sanitizer_reports(self):
+        """Fails when this run of the daemon printed a ThreadSanitizer (or ASan/UBSan) report."""
+        with open(self.log, "rb") as f:
+            f.seek(self.log_start)
+            text = f.read().decode(errors="replace")
+        for marker in ("WARNING: ThreadSanitizer", "ERROR: AddressSanitizer", "runtime error:"):
+            i = text.find(marker)
+            if i >= 0:
+                raise AssertionError("daemon sanitizer report:\n" + text[max(0, i - 200):i + 6000])
 
     def kill9(self):
         return self.stop(signal.SIGKILL)

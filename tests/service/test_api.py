@@ -3,6 +3,7 @@ safety, uploads, metrics format, probes."""
 import os
 import re
 import socket
+import struct
 import subprocess
 import sys
 import unittest
@@ -146,7 +147,9 @@ class ApiTest(unittest.TestCase):
         s, b = self.d.json("PUT", path % (jid, "a"), p0)
         self.assertEqual(s, 202, b)
         self.assertEqual(b["status"], "queued")
-        s, b = self.d.json("PUT", path % (jid, "a"), p0)
+        s, b = self.d.json("PUT", path % (jid, "a"), p0)  # the same bytes again: idempotent
+        self.assertIn((s, b["status"]), ((202, "queued"), (200, "ingested")), b)
+        s, b = self.d.json("PUT", path % (jid, "a"), p1)  # other bytes for the same pass
         self.assert_error(s, b, 409, "conflict")
         s, b = self.d.json("PUT", path % (jid, "b"), b"not an exr at all")
         self.assert_error(s, b, 400, "invalid_pass")
@@ -181,6 +184,33 @@ class ApiTest(unittest.TestCase):
         self.assert_error(s, b, 400)
         s, b = self.d.json("GET", "/api/v1/jobs/%s/frames/12/image?format=tiff" % jid)
         self.assert_error(s, b, 400)
+        # The dashboard's additions: colour-mapped layers, thumbnails, revalidation, history.
+        base = "/api/v1/jobs/%s/frames/12/image?format=png" % jid
+        s, h, _ = self.d.request("GET", base + "&layer=sure")
+        self.assertEqual((s, h["x-proden-colormap"], h["x-proden-scale"]), (200, "magma", "log"))
+        lo, hi = map(float, h["x-proden-range"].split())
+        self.assertTrue(0 < lo < hi, h["x-proden-range"])
+        s, h, thumb = self.d.request("GET", base + "&layer=result&size=32")
+        self.assertEqual(s, 200)
+        self.assertEqual(struct.unpack(">II", thumb[16:24]), (32, 32))  # PNG IHDR width, height
+        s, _, _ = self.d.request("GET", base + "&layer=result&size=32", headers={"If-None-Match": h["etag"]})
+        self.assertEqual(s, 304)
+        self.assert_error(*self.d.json("GET", base + "&size=3"), 400, "invalid_parameter")
+        s, hist = self.d.json("GET", "/api/v1/jobs/%s/frames/12/history" % jid)
+        self.assertEqual(s, 200)
+        passes = [v["passes"] for v in hist["versions"]]  # the two uploads may share a version
+        self.assertEqual((passes, passes[-1]), (sorted(passes), 2))
+        last = hist["versions"][-1]
+        self.assertEqual((last["version"], last["spp"]), (f["version"], 8.0))
+        self.assertGreater(last["render_mse"], 0)
+        s, jh = self.d.json("GET", "/api/v1/jobs/%s/history" % jid)
+        self.assertEqual([x["frame"] for x in jh["frames"]], [12])
+        self.assert_error(*self.d.json("GET", "/api/v1/jobs/%s/frames/99/history" % jid), 404)
+        s, q = self.d.json("GET", "/api/v1/jobs/%s/quarantine" % jid)
+        self.assertEqual((s, q["quarantined"]), (200, []))
+        s, maps = self.d.json("GET", "/api/v1/colormaps")
+        self.assertEqual(maps["layers"]["alpha"], {"kind": "scalar", "colormap": "viridis", "scale": "linear"})
+        self.assertEqual(len(maps["colormaps"]["magma"]), 32)
         # A stored upload is removed once accumulated.
         ups = os.path.join(self.d.state, "jobs", jid, "uploads", "12")
         wait_until(lambda: not [n for n in os.listdir(ups) if not n.startswith(".")], 10, what="uploads cleaned")
@@ -249,11 +279,27 @@ class AuthTest(unittest.TestCase):
                 self.assertEqual(s, 401)
                 s, b = d.json("PUT", "/api/v1/jobs/x/frames/1/passes/1", b"x" * 100, auth=False)
                 self.assertEqual(s, 401)
-                self.assertEqual(d.json("GET", "/api/v1/jobs", auth=False)[0], 200)  # reads are open
+                # Reads need the token too unless the operator opens them (open_reads).
+                self.assertEqual(d.json("GET", "/api/v1/jobs", auth=False)[0], 401)
+                self.assertEqual(d.json("GET", "/metrics", auth=False)[0], 401)
+                self.assertEqual(d.json("GET", "/api/v1/jobs")[0], 200)
+                self.assertEqual(d.json("GET", "/livez", auth=False)[0], 200)
+                self.assertEqual(d.request("GET", "/", auth=False)[0], 200)  # the dashboard's page
                 s, b = d.json("POST", "/api/v1/jobs", body)
                 self.assertEqual(s, 201, b)
                 s, _, _ = d.request("DELETE", "/api/v1/jobs/" + b["id"], auth=False)
                 self.assertEqual(s, 401)
+            finally:
+                self.assertEqual(d.stop(), 0)
+
+    def test_open_reads(self):
+        with TempRoot() as root:
+            d = Daemon(root, token=TOKEN, config={"open_reads": True}).start()
+            try:
+                self.assertEqual(d.json("GET", "/api/v1/jobs", auth=False)[0], 200)
+                self.assertEqual(d.json("GET", "/metrics", auth=False)[0], 200)
+                body = {"name": "a", "output": {"dir": os.path.join(d.allowed, "o")}}
+                self.assertEqual(d.json("POST", "/api/v1/jobs", body, auth=False)[0], 401)
             finally:
                 self.assertEqual(d.stop(), 0)
 

@@ -274,7 +274,9 @@ class ConnectionLimitTest(unittest.TestCase):
 
     def test_streams_cannot_take_every_connection(self):
         with TempRoot() as root:
-            d = Daemon(root, token=TOKEN, config={"limits": self.LIMITS}).start()
+            # Reads open to anyone (the operator's choice): the worst case, streams need no token.
+            d = Daemon(root, token=TOKEN,
+                       config={"limits": self.LIMITS, "open_reads": True}).start()
             streams, idle = [], []
             try:
                 # One client: its share, then 429.

@@ -63,6 +63,14 @@ struct JobSpec {
   std::string created;  // RFC 3339 UTC
 };
 
+// The largest samples-per-pixel count one pass may claim (job spec `spp` or a file's header):
+// 2^20. With it the accumulator's spp weights and their squares stay far from overflow.
+inline constexpr double kMaxPassSpp = 1048576.0;
+
+// Checks the numbers and names of a spec (throws ApiError 400 naming the field); parse_job_spec
+// calls it, and the daemon calls it on any spec it is handed.
+void validate_job_spec(const JobSpec& spec);
+
 // Validates and parses a job creation body (throws ApiError 400 naming the bad field). Paths are
 // returned as given; the daemon resolves them against its allowed roots.
 JobSpec parse_job_spec(const nlohmann::json& body);
