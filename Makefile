@@ -2,7 +2,8 @@
 # (dependencies via tools/install-deps.sh, configure, build).
 #   make build   install deps if missing, Release build into build/ (CLI at build/proden)
 #   make test    build, run the whole CTest suite, then the unit and daemon tests again under
-#                ASan+UBSan, and the daemon and service tests under ThreadSanitizer (build-tsan/)
+#                ASan+UBSan, the daemon and service tests under ThreadSanitizer (build-tsan/),
+#                and each libFuzzer target for a short smoke (make fuzz-smoke)
 #   make run     build and start the daemon (`proden serve`) with a demo job fed by the samples
 #   make run-cli build and run the CLI on the bundled samples
 #   make training-data  render the learned mixer's training/validation frames with Blender and
