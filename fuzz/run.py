@@ -88,6 +88,7 @@ def run(build, target, seconds, runs, work, artifacts, nice):
     env.setdefault("ASAN_OPTIONS", "abort_on_error=1:detect_leaks=1")
     env.setdefault("UBSAN_OPTIONS", "print_stacktrace=1:halt_on_error=1")
     before = set(os.listdir(artifacts))
+    load = os.getloadavg()[0]
     start = datetime.datetime.now(datetime.timezone.utc)
     p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env,
                        cwd=build, text=True, errors="replace")
@@ -97,7 +98,8 @@ def run(build, target, seconds, runs, work, artifacts, nice):
          "seconds_asked": seconds, "runs_asked": runs, "exit": p.returncode,
          "crashes": len([a for a in new if not a.startswith("slow-unit")]),
          "artifacts": [os.path.join(artifacts, a) for a in new],
-         "command": " ".join(cmd)}
+         "command": " ".join(cmd), "load_start": round(load, 1),
+         "load_end": round(os.getloadavg()[0], 1)}
     s.update(parse(log))
     m = re.search(r"Done (\d+) runs in (\d+) second", log)
     if m:
@@ -161,7 +163,8 @@ def report(args):
         "clang 14, `-fsanitize=fuzzer,address,undefined`, one fuzzer process at a time under "
         "`nice` on a shared 2-core machine. A target's executions are summed over its sessions "
         "(each session resumes from the corpus the previous one grew). Bar: >= 10 M executions "
-        "per target, 0 crashes.",
+        "per target, 0 crashes. exec/s depend on the machine's load (the 1-minute load average at "
+        "each session's start and end is listed; 2 cores): a projection assumes the same load.",
         "",
         "| target | sessions | executions | wall s | exec/s | crashes (open) | coverage (edges) "
         "| corpus | peak RSS MB | bar |",
@@ -183,7 +186,7 @@ def report(args):
             verdict = "met"
         else:
             need = max(bar - execs, 0)
-            verdict = "not met: %.1f M short, %.1f h more at %d exec/s" % (
+            verdict = "not met: %.2f M short, about %.1f h more at %d exec/s" % (
                 need / 1e6, need / rate / 3600 if rate else float("inf"), rate)
             if open_crashes:
                 verdict = "crash open"
@@ -193,9 +196,11 @@ def report(args):
             max(s.get("peak_rss_mb", 0) for s in ss), verdict))
     lines += ["", "Sessions (latest last):", ""]
     for s in sessions:
-        lines.append("- %s `%s`: %s executions in %s s, exit %d, %d crash(es)%s" % (
+        lines.append("- %s `%s`: %s executions in %s s, exit %d, %d crash(es), load average %s -> %s"
+                     "%s" % (
             s["started"], s["target"], "{:,}".format(s.get("executions", 0)),
-            s.get("wall_seconds", "?"), s["exit"], s["crashes"],
+            s.get("wall_seconds", "?"), s["exit"], s["crashes"], s.get("load_start", "?"),
+            s.get("load_end", "?"),
             "" if not s["artifacts"] else " -> " + ", ".join(
                 os.path.basename(a) for a in s["artifacts"])))
     text = "\n".join(lines) + "\n"
