@@ -2,7 +2,8 @@
 # (dependencies via tools/install-deps.sh, configure, build).
 #   make build   install deps if missing, Release build into build/ (CLI at build/proden)
 #   make test    build, run the whole CTest suite, then the unit and daemon tests again under
-#                ASan+UBSan, and the daemon and service tests under ThreadSanitizer (build-tsan/)
+#                ASan+UBSan, the daemon and service tests under ThreadSanitizer (build-tsan/),
+#                and each libFuzzer target for a short smoke (make fuzz-smoke)
 #   make run     build and start the daemon (`proden serve`) with a demo job fed by the samples
 #   make run-cli build and run the CLI on the bundled samples
 #   make training-data  render the learned mixer's training/validation frames with Blender and
@@ -14,19 +15,29 @@
 #   make soak    build, then soak the daemon on loopback for SOAK_MINUTES (default 30): 200 SSE
 #                clients, 20 passes/s (uploads and watched files), kill -9 every 3 minutes; writes
 #                bench/results/soak.md (+ soak_rss.png) and fails on any error (bench/soak.py)
+#   make fuzz    build the libFuzzer targets into build-fuzz/ (clang, ASan+UBSan) and run each one
+#                in turn until FUZZ_RUNS executions or FUZZ_SECONDS seconds (per target), growing
+#                build-fuzz/fuzz/corpus/; writes bench/results/fuzz.md (fuzz/README.md)
+#   make fuzz-smoke  each fuzz target FUZZ_SMOKE_SECONDS on the committed corpus (part of make test)
 #   make bench   build the benchmarks into build-bench/, render missing evaluation sets (EVALDATA,
 #                default /work/evaldata; slow on a fresh machine), regenerate bench/results/ and
 #                bench/RESULTS.md (bench/run_all.sh documents its variables)
 .PHONY: build test run run-cli deps asan test-asan tsan test-tsan format clean bench training-data \
-        train validate soak
+        train validate soak fuzz fuzz-build fuzz-smoke
 
 BUILD_DIR ?= build
 ASAN_DIR  ?= build-asan
 TSAN_DIR  ?= build-tsan
 JOBS      ?= $(shell nproc)
+comma := ,
 WERROR    ?= ON
 OUT_DIR   ?= out
 BENCH_DIR ?= build-bench
+FUZZ_DIR  ?= build-fuzz
+FUZZ_SECONDS ?= 7200        # per target; the campaign stops earlier at FUZZ_RUNS executions
+FUZZ_RUNS ?= 10000000
+FUZZ_TARGETS ?= pass_reader,weights,frame_state,job_config,http_request,watch_pattern
+FUZZ_SMOKE_SECONDS ?= 20
 
 deps:
 	@tools/install-deps.sh
@@ -36,7 +47,7 @@ build: deps
 	cmake --build $(BUILD_DIR) -j $(JOBS)
 
 # The 2-minute soak (label soak) is left out: `cd build && ctest -L soak`, or `make soak`.
-test: build test-asan test-tsan
+test: build test-asan test-tsan fuzz-smoke
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS) -LE soak
 
 asan: deps
@@ -72,6 +83,19 @@ run-cli: build
 	$(BUILD_DIR)/proden eval --ref samples/renders/cornell/reference.exr \
 	    samples/renders/cornell/pass_00.exr $(OUT_DIR)/cornell.exr
 	@echo "outputs in $(OUT_DIR)/"
+
+# libFuzzer targets (fuzz/): clang 14 + compiler-rt from Debian, every proden library instrumented.
+fuzz-build: deps
+	cmake -S . -B $(FUZZ_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ \
+	      -DPRODEN_FUZZ=ON -DPRODEN_BUILD_TESTS=OFF -DPRODEN_BUILD_BENCH=OFF
+	cmake --build $(FUZZ_DIR) -j $(JOBS) --target $(addprefix fuzz_,$(subst $(comma), ,$(FUZZ_TARGETS)))
+
+fuzz-smoke: fuzz-build
+	fuzz/run.py smoke $(FUZZ_DIR) --seconds $(FUZZ_SMOKE_SECONDS) --targets $(FUZZ_TARGETS)
+
+fuzz: fuzz-build
+	fuzz/run.py campaign $(FUZZ_DIR) --seconds $(FUZZ_SECONDS) --runs $(FUZZ_RUNS) \
+	    --targets $(FUZZ_TARGETS)
 
 bench: deps
 	@tools/install-deps.sh blender   # renders the evaluation sets it lacks

@@ -5,7 +5,7 @@ Generated parts: accuracy.md + accuracy_summary.json (bench/accuracy.py), perf.j
 (proden_bench_pipeline), cycles_1080p.json (Blender, same run), micro.txt (Google Benchmark).
 Hand-written parts, included verbatim: accumulation.md, daemon.md, dashboard.md, hostile.md,
 soak.md, farm.md, few_passes.md, savings.md (measurements made by other tools; edit them there, not
-in RESULTS.md); nfor.md is written by bench/nfor_results.py.
+in RESULTS.md); nfor.md is written by bench/nfor_results.py, fuzz.md by `make fuzz` (fuzz/run.py).
 """
 import json
 import math
@@ -204,7 +204,8 @@ def main():
          "`bench/results/savings.md` (`bench/savings.py`), `bench/results/accumulation.md`, "
          "`bench/results/daemon.md`, `bench/results/dashboard.md`, `bench/results/hostile.md`, "
          "`bench/results/soak.md` and `bench/results/farm.md`, which the generator "
-         "includes verbatim: edit those files. "
+         "includes verbatim: edit those files; the *Fuzzing* section is "
+         "`bench/results/fuzz.md`, written by `make fuzz`. "
          "So are `bench/results/few_passes.md` (written by `bench/few_passes.py`) and "
          "`bench/results/closing_extra.md`, the interpretation at the end.",
          "",
@@ -233,7 +234,7 @@ def main():
                                                                           "Run on"))))
         L.append("```\n")
     for part in ("nfor.md", "savings.md", "accumulation.md", "daemon.md", "dashboard.md",
-                 "hostile.md", "soak.md", "farm.md"):
+                 "hostile.md", "soak.md", "farm.md", "fuzz.md"):
         t = read(part)
         if t:
             L.append(t)

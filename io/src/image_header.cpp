@@ -4,6 +4,7 @@
 #include <array>
 #include <cstring>
 #include <limits>
+#include <map>
 
 #include "proden/error.hpp"
 #include "proden/io/text.hpp"
@@ -115,6 +116,37 @@ void check_pixels(std::int64_t w, std::int64_t h, const std::string& name, const
   }
 }
 
+// Bytes of a value of the OpenEXR attribute types with a fixed layout (OpenEXR "File Layout",
+// predefined attribute types), or 0.
+int fixed_value_size(const std::string& type) {
+  static const std::map<std::string, int, std::less<>> kSizes = {{"box2i", 16},
+                                                                 {"box2f", 16},
+                                                                 {"chromaticities", 32},
+                                                                 {"compression", 1},
+                                                                 {"deepImageState", 1},
+                                                                 {"double", 8},
+                                                                 {"envmap", 1},
+                                                                 {"float", 4},
+                                                                 {"int", 4},
+                                                                 {"keycode", 28},
+                                                                 {"lineOrder", 1},
+                                                                 {"m33f", 36},
+                                                                 {"m33d", 72},
+                                                                 {"m44f", 64},
+                                                                 {"m44d", 128},
+                                                                 {"rational", 8},
+                                                                 {"tiledesc", 9},
+                                                                 {"timecode", 8},
+                                                                 {"v2i", 8},
+                                                                 {"v2f", 8},
+                                                                 {"v2d", 16},
+                                                                 {"v3i", 12},
+                                                                 {"v3f", 12},
+                                                                 {"v3d", 24}};
+  const auto it = kSizes.find(type);
+  return it == kSizes.end() ? 0 : it->second;
+}
+
 HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const ReadLimits& lim) {
   Cursor c(src, name);
   c.pos = 4;
@@ -177,13 +209,37 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
                    std::to_string(size) + " bytes, expected " + std::to_string(n));
         }
       };
-      if (attr == "channels" && type == "chlist") {
-        have_channels = true;
+      // OpenEXR reads a value of a type it knows by that type's own layout, not by the declared
+      // size: a size that disagrees would make it read other bytes than this walk checked (and
+      // allocate what they say). Held to the layout, both read the same header.
+      if (const int fixed = fixed_value_size(type); fixed > 0) expect_size(fixed);
+      if (type == "preview") {
+        if (size < 8) expect_size(8);
+        const std::uint64_t at = c.pos;
+        const std::uint64_t pw = c.u32(), ph = c.u32();
+        c.pos = at;
+        const std::uint64_t room = (static_cast<std::uint64_t>(size) - 8) / 4;
+        if ((pw != 0 && ph > room / pw) || pw * ph * 4 != static_cast<std::uint64_t>(size) - 8) {
+          fail(InputErrorKind::unreadable, name,
+               "corrupt header: preview image of " + std::to_string(pw) + "x" + std::to_string(ph) +
+                   " pixels in an attribute of " + std::to_string(size) + " bytes");
+        }
+      }
+      if (type == "chlist") {
+        have_channels = have_channels || attr == "channels";
         for (;;) {
           if (c.pos >= value_end) {
             fail(InputErrorKind::unreadable, name, "corrupt header: unterminated channel list");
           }
-          if (c.byte() == 0) break;
+          if (c.byte() == 0) {
+            // OpenEXR reads channels up to this terminator, whatever the declared size says.
+            if (c.pos != value_end) {
+              fail(InputErrorKind::unreadable, name,
+                   "corrupt header: channel list '" + attr + "' ends before its declared " +
+                       std::to_string(size) + " bytes");
+            }
+            break;
+          }
           --c.pos;
           std::string ch = c.cstring(255, "channel name");
           if (c.pos + 16 > value_end) {
@@ -205,7 +261,7 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
             fail(InputErrorKind::too_large, name,
                  "more than " + std::to_string(lim.max_channels) + " channels");
           }
-          part.channels.push_back(std::move(ch));
+          if (attr == "channels") part.channels.push_back(std::move(ch));
         }
       } else if ((attr == "dataWindow" || attr == "displayWindow") && type == "box2i") {
         expect_size(16);

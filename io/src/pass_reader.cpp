@@ -230,13 +230,6 @@ std::optional<double> parse_duration(const std::string& s) {
   return total;
 }
 
-// Samples per pixel of one pass: a finite positive count. 2^32 is far above any render and keeps
-// sums of many passes exact in double.
-constexpr double kMaxSpp = 4294967296.0;
-bool valid_spp(double spp) {
-  return std::isfinite(spp) && spp > 0.0 && spp <= kMaxSpp;
-}
-
 struct Resolved {
   ChannelMap map;
   std::vector<std::string> colour, albedo, normal, depth, variance;
@@ -328,6 +321,10 @@ Resolved resolve(const Header& h, const std::string& path, const ReadOptions& op
 }
 
 }  // namespace
+
+bool valid_spp(double spp) {
+  return std::isfinite(spp) && spp > 0.0 && spp <= kMaxSpp;
+}
 
 std::string_view to_string(SppSource s) {
   switch (s) {

@@ -13,6 +13,7 @@
 // per-half feature means, and moments (mean and M2 over all passes) for each feature. It loads
 // with both halves' feature means set to that mean (so the full mean is unchanged) and
 // feature_halves() false: the frame never reports feature halves (docs/nfor.md, fallback).
+#include <cmath>
 #include <cstring>
 #include <type_traits>
 
@@ -154,6 +155,7 @@ FrameAccumulator FrameAccumulator::deserialize(std::span<const std::uint8_t> blo
     PassRecord rec;
     rec.name = r.str();
     rec.spp = r.get<double>();
+    if (!std::isfinite(rec.spp) || rec.spp <= 0.0) Reader::fail("bad spp in frame state history");
     rec.half = r.get<std::int32_t>();
     if (rec.half != 0 && rec.half != 1) Reader::fail("bad half index in frame state");
     rec.fingerprint = r.get<std::uint64_t>();

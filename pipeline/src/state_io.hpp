@@ -3,6 +3,7 @@
 // refuses truncated or inconsistent data with InputError (unreadable, subject "frame state").
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <span>
@@ -60,6 +61,13 @@ class Reader {
     std::vector<T> v(n);
     if (n > 0) std::memcpy(v.data(), bytes.data() + pos, n * sizeof(T));
     pos += n * sizeof(T);
+    if constexpr (std::is_floating_point_v<T>) {
+      // add() never stores a non-finite statistic; one here is damage, however it got past the
+      // checksum (issue 11, class 9: never resume from NaN).
+      for (const T x : v) {
+        if (!std::isfinite(x)) fail("non-finite statistic in frame state");
+      }
+    }
     return v;
   }
   std::string str() {

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <ctime>
 
+#include "proden/protocol/json.hpp"
 #include "proden/protocol/pipeline_spec.hpp"
 #include "proden/protocol/publish.hpp"
 
@@ -241,9 +242,9 @@ PassIdentity pass_identity_from_json(const json& j) {
   PassIdentity p;
   p.pass = j.at("pass").get<std::string>();
   p.source = j.at("source").get<std::string>();
-  p.size = j.at("size").get<std::uint64_t>();
-  p.mtime_ns = j.at("mtime_ns").get<std::int64_t>();
-  p.content_hash = j.at("content_hash").get<std::uint64_t>();
+  p.size = checked_number<std::uint64_t>(j.at("size"), "size");
+  p.mtime_ns = checked_number<std::int64_t>(j.at("mtime_ns"), "mtime_ns");
+  p.content_hash = checked_number<std::uint64_t>(j.at("content_hash"), "content_hash");
   return p;
 }
 

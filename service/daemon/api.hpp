@@ -14,6 +14,7 @@
 #include "daemon/engine.hpp"
 #include "daemon/files.hpp"
 #include "daemon/http_server.hpp"
+#include "daemon/request_parse.hpp"
 
 namespace proden::daemon {
 
@@ -44,24 +45,5 @@ class Api : public Handler {
   std::string token_;
   std::atomic<bool> draining_{false};
 };
-
-// ---- request parsing (byte strings in, fuzzable) ------------------------------------------------
-
-// A request target split into percent-decoded path segments and query parameters.
-struct Target {
-  std::vector<std::string> path;
-  std::map<std::string, std::string> query;
-};
-
-// Parses an origin-form target ("/a/b?x=1&y=2"). Every decoded segment, key and value must be
-// UTF-8 without control characters; otherwise nullopt with `why` naming the part ("path segment
-// 3", "query parameter 'layer'"), for a 400.
-std::optional<Target> parse_target(std::string_view target, std::string& why);
-
-// A Last-Event-ID value: decimal digits only, fits 64 bits.
-std::optional<std::uint64_t> parse_event_id(std::string_view value);
-
-// The token of an "Authorization: Bearer <token>" value (scheme case-insensitive), or nullopt.
-std::optional<std::string_view> bearer_token(std::string_view authorization);
 
 }  // namespace proden::daemon

@@ -11,6 +11,7 @@
 
 #include "daemon/frame_history.hpp"
 #include "daemon/processor.hpp"
+#include "daemon/request_parse.hpp"
 #include "daemon/versions.hpp"
 #include "proden/hash.hpp"
 #include "proden/io/pass_reader.hpp"
@@ -45,10 +46,11 @@ bool valid_pass_name(const std::string& p) {
 }
 
 long parse_frame(const std::string& s) {
-  if (s.empty() || s.size() > 9 || !std::all_of(s.begin(), s.end(), ::isdigit)) {
+  const auto frame = parse_frame_number(s);
+  if (!frame) {
     throw ApiError(400, "invalid_frame", "frame must be a non-negative integer (<= 9 digits)");
   }
-  return std::stol(s);
+  return *frame;
 }
 
 }  // namespace

@@ -7,6 +7,7 @@
 
 #include "daemon/files.hpp"
 #include "proden/hash.hpp"
+#include "proden/protocol/json.hpp"
 
 namespace proden::daemon {
 
@@ -56,20 +57,25 @@ json to_json(const FrameRecord& r) {
 }
 
 FrameRecord frame_record_from_json(const json& j) {
+  // Numbers checked, never cast blindly: a state holds only finite values in range (issue 11,
+  // class 9; fuzz/frame_state_fuzz.cpp).
+  const auto num = [&j]<class T>(const char* key, T& out) {
+    out = protocol::checked_number<T>(j.at(key), std::string("frame state record: ") + key);
+  };
   FrameRecord r;
-  r.frame = j.at("frame").get<long>();
-  r.version = j.at("version").get<std::uint64_t>();
+  num("frame", r.frame);
+  num("version", r.version);
   r.updated = j.at("updated").get<std::string>();
-  r.estimated_mse = j.at("estimated_mse").get<double>();
+  num("estimated_mse", r.estimated_mse);
   r.estimated_mse_source = j.at("estimated_mse_source").get<std::string>();
-  r.passes = j.at("passes").get<int>();
-  r.spp = j.at("spp").get<double>();
-  r.width = j.at("width").get<int>();
-  r.height = j.at("height").get<int>();
+  num("passes", r.passes);
+  num("spp", r.spp);
+  num("width", r.width);
+  num("height", r.height);
   r.inputs = j.at("inputs").get<std::string>();
   r.variance_source = j.at("variance_source").get<std::string>();
   r.low_confidence = j.at("low_confidence").get<bool>();
-  r.digest = j.at("digest").get<std::uint64_t>();
+  num("digest", r.digest);
   for (const auto& p : j.at("ingested")) r.ingested.push_back(protocol::pass_identity_from_json(p));
   // Keys added by issue 13 (absent in older states).
   r.estimated_error = j.value("estimated_error", json());
@@ -82,12 +88,13 @@ FrameRecord frame_record_from_json(const json& j) {
   return r;
 }
 
-void save_frame_state(const fs::path& path, const FrameRecord& record,
-                      const FrameAccumulator& frame, const AovAccumulator& aovs) {
+std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
+                                            const FrameAccumulator& frame,
+                                            const AovAccumulator& aovs) {
   for (const auto& [name, v] :
        {std::pair{"spp", record.spp}, {"estimated_mse", record.estimated_mse}}) {
     if (!std::isfinite(v)) {
-      throw std::invalid_argument(path.string() + ": refusing to persist a non-finite " + name);
+      throw std::invalid_argument(std::string("refusing to persist a non-finite ") + name);
     }
   }
   // The blob: the accumulator, then the renderer AOVs (issue 13); the record says where it splits.
@@ -112,27 +119,35 @@ void save_frame_state(const fs::path& path, const FrameRecord& record,
   put64(blob.size());
   put(blob.data(), blob.size());
   put64(file_hash(std::span<const std::uint8_t>(out).first(at)));
-  write_file_atomic(path, out);
+  return out;
+}
+
+void save_frame_state(const fs::path& path, const FrameRecord& record,
+                      const FrameAccumulator& frame, const AovAccumulator& aovs) {
+  try {
+    write_file_atomic(path, frame_state_bytes(record, frame, aovs));
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(path.string() + ": " + e.what());
+  }
 }
 
 namespace {
 
-FrameRecord parse_record(std::span<const std::uint8_t> b, const fs::path& path,
+FrameRecord parse_record(std::span<const std::uint8_t> b, const std::string& path,
                          std::size_t* blob_offset, std::size_t* accumulator_bytes = nullptr) {
   std::uint64_t n = 0;
   if (b.size() < sizeof kMagic + 8 || (std::memcmp(b.data(), kMagic, sizeof kMagic) != 0 &&
                                        std::memcmp(b.data(), kMagicV1, sizeof kMagic) != 0)) {
-    throw std::runtime_error(path.string() + ": not a proden frame state");
+    throw std::runtime_error(path + ": not a proden frame state");
   }
   std::memcpy(&n, b.data() + sizeof kMagic, sizeof n);
   if (n > b.size() - sizeof kMagic - 8 || b.size() - sizeof kMagic - 8 - n < 8) {
-    throw std::runtime_error(path.string() + ": truncated frame state");
+    throw std::runtime_error(path + ": truncated frame state");
   }
   std::string text(reinterpret_cast<const char*>(b.data() + sizeof kMagic + 8), n);
   std::uint64_t h = 0;
   std::memcpy(&h, b.data() + sizeof kMagic + 8 + n, sizeof h);
-  if (h != text_hash(text))
-    throw std::runtime_error(path.string() + ": corrupt frame state record");
+  if (h != text_hash(text)) throw std::runtime_error(path + ": corrupt frame state record");
   if (blob_offset) *blob_offset = sizeof kMagic + 16 + n;
   try {
     const json j = json::parse(text);
@@ -142,8 +157,8 @@ FrameRecord parse_record(std::span<const std::uint8_t> b, const fs::path& path,
                                : b.size() - (sizeof kMagic + 16 + n);
     }
     return frame_record_from_json(j);
-  } catch (const json::exception& e) {
-    throw std::runtime_error(path.string() + ": bad frame state record: " + e.what());
+  } catch (const std::exception& e) {  // json::exception, or a number out of range
+    throw std::runtime_error(path + ": bad frame state record: " + e.what());
   }
 }
 
@@ -164,48 +179,52 @@ FrameRecord load_frame_record(const fs::path& path) {
                static_cast<std::streamsize>(n + 8))) {
     throw std::runtime_error(path.string() + ": truncated frame state");
   }
-  return parse_record(head, path, nullptr);
+  return parse_record(head, path.string(), nullptr);
 }
 
-FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* record,
-                                        AovAccumulator* aovs) {
-  auto bytes = read_file(path);
-  if (!bytes) throw std::runtime_error(path.string() + ": cannot read");
-  const std::span<const std::uint8_t> all(*bytes);
+FrameAccumulator parse_frame_state(std::span<const std::uint8_t> all, const std::string& path,
+                                   FrameRecord* record, AovAccumulator* aovs) {
   std::span<const std::uint8_t> blob;
   if (all.size() >= sizeof kMagic && std::memcmp(all.data(), kMagic, sizeof kMagic) == 0) {
     // Version 2: the whole file's hash first, then the parts.
     std::uint64_t h = 0;
     if (all.size() < sizeof kMagic + 32) {
-      throw std::runtime_error(path.string() + ": truncated frame state");
+      throw std::runtime_error(path + ": truncated frame state");
     }
     std::memcpy(&h, all.data() + all.size() - 8, sizeof h);
     if (h != file_hash(all.first(all.size() - 8))) {
-      throw std::runtime_error(path.string() + ": frame state checksum mismatch");
+      throw std::runtime_error(path + ": frame state checksum mismatch");
     }
   }
   std::size_t offset = 0, acc_bytes = 0;
   FrameRecord r = parse_record(all, path, &offset, &acc_bytes);
   if (std::memcmp(all.data(), kMagic, sizeof kMagic) == 0) {
     std::uint64_t m = 0;
-    if (offset + 16 > all.size()) throw std::runtime_error(path.string() + ": truncated");
+    if (offset + 16 > all.size()) throw std::runtime_error(path + ": truncated");
     std::memcpy(&m, all.data() + offset, sizeof m);
     if (m != all.size() - offset - 16) {
-      throw std::runtime_error(path.string() + ": inconsistent frame state");
+      throw std::runtime_error(path + ": inconsistent frame state");
     }
     blob = all.subspan(offset + 8, m);
     if (acc_bytes == all.size() - (offset)) acc_bytes = blob.size();  // no accumulator_bytes key
   } else {
     blob = all.subspan(offset);
   }
-  if (acc_bytes > blob.size()) throw std::runtime_error(path.string() + ": truncated frame state");
+  if (acc_bytes > blob.size()) throw std::runtime_error(path + ": truncated frame state");
   FrameAccumulator acc = FrameAccumulator::deserialize(blob.first(acc_bytes));
   if (aovs) *aovs = AovAccumulator::deserialize(blob.subspan(acc_bytes));
   if (acc.state_digest() != r.digest) {
-    throw std::runtime_error(path.string() + ": accumulator does not match its record");
+    throw std::runtime_error(path + ": accumulator does not match its record");
   }
   if (record) *record = std::move(r);
   return acc;
+}
+
+FrameAccumulator load_frame_accumulator(const fs::path& path, FrameRecord* record,
+                                        AovAccumulator* aovs) {
+  auto bytes = read_file(path);
+  if (!bytes) throw std::runtime_error(path.string() + ": cannot read");
+  return parse_frame_state(*bytes, path.string(), record, aovs);
 }
 
 }  // namespace proden::daemon

@@ -13,6 +13,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -53,6 +54,14 @@ FrameRecord frame_record_from_json(const nlohmann::json& j);
 
 void save_frame_state(const std::filesystem::path& path, const FrameRecord& record,
                       const FrameAccumulator& frame, const AovAccumulator& aovs = {});
+// The file's bytes, and the inverse (both used by the functions above; bytes in, bytes out for
+// the fuzz target fuzz/frame_state_fuzz.cpp). `name` names the file in errors. Throws on a corrupt
+// or inconsistent state; a non-finite number in the record or the statistics is corrupt.
+std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
+                                            const FrameAccumulator& frame,
+                                            const AovAccumulator& aovs = {});
+FrameAccumulator parse_frame_state(std::span<const std::uint8_t> bytes, const std::string& name,
+                                   FrameRecord* record, AovAccumulator* aovs = nullptr);
 // Reads only the JSON record (fast). Throws std::runtime_error on a corrupt file.
 FrameRecord load_frame_record(const std::filesystem::path& path);
 // Reads the record and the accumulator (and, if `aovs`, the renderer AOVs). Throws on a corrupt

@@ -103,7 +103,16 @@ PassPattern::PassPattern(std::string_view pattern) {
   *this = std::move(*p);
 }
 
-std::optional<PassPattern::Match> PassPattern::match(std::string_view relative) const {
+std::optional<PassPattern::Match> PassPattern::match(std::string_view relative,
+                                                     std::size_t* steps) const {
+  std::size_t work = 0;
+  struct Report {  // adds the work done to *steps on every return
+    std::size_t* steps;
+    const std::size_t& work;
+    ~Report() {
+      if (steps) *steps += work;
+    }
+  } report{steps, work};
   if (relative.size() > kMaxPathLength) return std::nullopt;
   std::optional<std::string> frame_text, pass;
   std::size_t start = 0;
@@ -117,6 +126,7 @@ std::optional<PassPattern::Match> PassPattern::match(std::string_view relative) 
     const std::size_t n = s.size(), k = tokens.size();
     // run[p]: how many bytes from p on are in the token's class (per class).
     std::vector<std::uint32_t> digits(n + 1, 0), passc(n + 1, 0);
+    work += n + 1;
     for (std::size_t p = n; p-- > 0;) {
       const auto c = static_cast<unsigned char>(s[p]);
       digits[p] = is_digit(c) ? digits[p + 1] + 1 : 0;
@@ -125,16 +135,19 @@ std::optional<PassPattern::Match> PassPattern::match(std::string_view relative) 
     // ok[i][p]: tokens i..k-1 match s[p..n). Filled from the back, each row in O(n) with a
     // prefix count of the next row (is any q in [lo, hi] with ok[i+1][q]?).
     std::vector<std::vector<char>> ok(k + 1, std::vector<char>(n + 1, 0));
+    work += (k + 1) * (n + 1);
     ok[k][n] = 1;
     std::vector<std::uint32_t> count(n + 2, 0);
     for (std::size_t i = k; i-- > 0;) {
       const Token& t = tokens[i];
       if (t.kind == Kind::literal) {
+        work += (n + 1) * t.text.size();
         for (std::size_t p = 0; p + t.text.size() <= n; ++p) {
           ok[i][p] = ok[i + 1][p + t.text.size()] && s.substr(p, t.text.size()) == t.text;
         }
         continue;
       }
+      work += 2 * (n + 1);
       for (std::size_t q = 0; q <= n; ++q) count[q + 1] = count[q] + (ok[i + 1][q] ? 1 : 0);
       const auto& run = t.kind == Kind::frame ? digits : passc;
       for (std::size_t p = 0; p <= n; ++p) {
@@ -154,7 +167,11 @@ std::optional<PassPattern::Match> PassPattern::match(std::string_view relative) 
       }
       const auto& run = t.kind == Kind::frame ? digits : passc;
       std::size_t q = p + run[p];
-      while (!ok[i + 1][q]) --q;  // ok[i][p] guarantees one in [p + min, p + run[p]]
+      while (!ok[i + 1][q]) {  // ok[i][p] guarantees one in [p + min, p + run[p]]
+        --q;
+        ++work;
+      }
+      work += q - p + 1;  // the value copied
       std::string value(s.substr(p, q - p));
       auto& slot = t.kind == Kind::frame ? frame_text : pass;
       if (t.kind == Kind::frame && slot) {

@@ -2,11 +2,16 @@
 // and states written by the previous format version still load.
 #include <catch2/catch.hpp>
 
+#include <cmath>
+#include <cstring>
 #include <fstream>
 #include <iterator>
+#include <limits>
+#include <span>
 
 #include "proden/accumulator.hpp"
 #include "proden/error.hpp"
+#include "proden/hash.hpp"
 #include "test_support.hpp"
 
 using namespace proden;
@@ -142,4 +147,40 @@ TEST_CASE("a version-1 state (no feature halves) still loads and keeps accumulat
   const FrameAccumulator again = FrameAccumulator::deserialize(blob2);
   CHECK_FALSE(again.feature_halves());
   CHECK(again.state_digest() == old.state_digest());
+}
+
+// A state whose checksum is intact but which holds a non-finite number (damage before the
+// checksum was computed, or a forged file) is refused: a frame never resumes from NaN (issue 11,
+// class 9; the property fuzz/frame_state_fuzz.cpp asserts on every accepted state).
+TEST_CASE("accumulator state with a non-finite number is refused", "[accumulator][state]") {
+  FrameAccumulator a;
+  a.add(test::make_pass(4, 3, 4.0, 1), "a");
+  a.add(test::make_pass(4, 3, 4.0, 2), "b");
+  const auto blob = a.serialize();
+  // Re-seals a modified blob as serialize() does (its trailing hash).
+  const auto seal = [](std::vector<std::uint8_t> b) {
+    const std::size_t body = b.size() - 8;
+    const std::uint64_t h =
+        hash_span(std::span<const std::uint8_t>(b).first(body), 0x61636373746174);
+    std::memcpy(b.data() + body, &h, sizeof h);
+    return b;
+  };
+  REQUIRE(FrameAccumulator::deserialize(seal(blob)).state_digest() == a.state_digest());
+  const auto with_double_at = [&](std::size_t offset, double v) {
+    auto b = blob;
+    std::memcpy(b.data() + offset, &v, sizeof v);
+    return seal(b);
+  };
+  // Half A's weight vector starts after magic(8) + width(4) + height(4) + flags(1) +
+  // feature halves(1) + length(8).
+  constexpr std::size_t kFirstWeight = 26;
+  for (double bad : {std::nan(""), std::numeric_limits<double>::infinity()}) {
+    CHECK_THROWS_AS(FrameAccumulator::deserialize(with_double_at(kFirstWeight, bad)), InputError);
+    // The last record's spp: before its half (i32) and three u64 counters, then the hash.
+    const std::size_t last_spp = blob.size() - 8 - 3 * 8 - 4 - 8;
+    CHECK_THROWS_AS(FrameAccumulator::deserialize(with_double_at(last_spp, bad)), InputError);
+  }
+  CHECK_THROWS_AS(
+      FrameAccumulator::deserialize(with_double_at(blob.size() - 8 - 3 * 8 - 4 - 8, -4.0)),
+      InputError);
 }

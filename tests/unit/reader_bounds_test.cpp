@@ -263,3 +263,37 @@ TEST_CASE("the multi-part and tiled files OIIO writes pass the header walk", "[i
   CHECK(p.colour.width() == 40);
   CHECK(p.colour.at(3, 3, 1) == 0.5f);
 }
+
+// OpenEXR reads a value of a type it knows by the type's layout, not by the declared size (a
+// channel list up to its terminator, a box2i as 16 bytes, a preview as width x height pixels).
+// A header whose sizes disagree made OpenEXR read other bytes than the walk had checked: the
+// pass_reader fuzz target found a 2.5 KB file whose channel list ended early, after which
+// OpenEXR read an attribute size of 1.8 GB the walk had skipped as channel-list bytes
+// (fuzz/corpus/pass_reader/finding_chlist_ends_early.exr).
+TEST_CASE("EXR header walk: declared sizes must match the types' layouts", "[io][format]") {
+  const auto refused = [](const test::ExrAttribute& extra) {
+    test::ExrSpec spec;
+    spec.extra = {extra};
+    try {
+      io::inspect_header(io::MemorySource(test::exr_bytes(spec)), "mem", {});
+    } catch (const InputError& e) {
+      return e.kind() == InputErrorKind::unreadable;
+    }
+    return false;
+  };
+  // A second channel list whose terminator comes before its declared end.
+  std::vector<std::uint8_t> chlist = {'A', 0, 2, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 0};
+  CHECK_FALSE(refused({"extraChannels", "chlist", chlist}));
+  chlist.insert(chlist.end(), {'X', 'Y', 'Z', 0});
+  CHECK(refused({"extraChannels", "chlist", chlist}));
+  // A box2i of 20 bytes (OpenEXR reads 16) and a float of 8.
+  CHECK(refused({"someBox", "box2i", std::vector<std::uint8_t>(20, 0)}));
+  CHECK(refused({"someFloat", "float", std::vector<std::uint8_t>(8, 0)}));
+  CHECK_FALSE(refused({"someFloat", "float", std::vector<std::uint8_t>(4, 0)}));
+  // A preview declaring 60000 x 60000 pixels in 8 bytes (OpenEXR would allocate 14 GB).
+  const std::vector<std::uint8_t> bomb = {0x60, 0xEA, 0, 0, 0x60, 0xEA, 0, 0};
+  CHECK(refused({"preview", "preview", bomb}));
+  std::vector<std::uint8_t> preview = {2, 0, 0, 0, 1, 0, 0, 0};
+  preview.resize(8 + 2 * 1 * 4, 0x80);
+  CHECK_FALSE(refused({"preview", "preview", preview}));
+}

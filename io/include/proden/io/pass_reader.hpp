@@ -31,6 +31,11 @@ struct ReadOptions {
 };
 
 enum class SppSource { header, option, assumed };
+
+// Samples per pixel of one pass: a finite positive count up to kMaxSpp (2^32: far above any
+// render, and sums of many passes stay exact in double). A job's `spp` is held to the same bound.
+inline constexpr double kMaxSpp = 4294967296.0;
+bool valid_spp(double spp);
 std::string_view to_string(SppSource s);
 
 // What was detected in a pass file. Every string is printable text (io::printable): channel

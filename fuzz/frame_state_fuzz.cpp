@@ -1,0 +1,131 @@
+// Fuzz target: a frame's state file (service/daemon/frame_state.hpp: "PRDNFRS1", the JSON record
+// and its hash, the accumulator blob and its checksum) parsed as the daemon loads it after a
+// restart. Each input is parsed twice: as given (the checksum gates), and with both checksums
+// recomputed so the mutations reach the record's fields and the statistics behind the gates.
+//
+// Properties: a state either parses or is refused with an exception (never a crash, never UB);
+// an accepted state holds only finite numbers (record, pass history, statistics) and its digest
+// matches its record; written again (frame_state_bytes) it reads back to the same record and the
+// same digest (issue 11, classes 9 and 11).
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "daemon/frame_state.hpp"
+#include "fuzz_check.hpp"
+#include "proden/hash.hpp"
+
+using namespace proden;
+using namespace proden::daemon;
+
+namespace {
+
+// The checksums of the file format (daemon/frame_state.cpp: version 1 "PRDNFRS1" = magic, u64 n,
+// record, u64 record hash, accumulator blob; version 2 "PRDNFRS2" = the same with the blob's
+// length before it and a hash of the whole file after it; the blob ends with its own checksum,
+// pipeline/src/accumulator_state.cpp). LLVMFuzzerInitialize proves them against a real state, so
+// the harness cannot silently stop reaching past the gates if the format changes.
+constexpr std::uint64_t kRecordSeed = 0x66726d;
+constexpr std::uint64_t kFileSeed = 0x66726d32;
+constexpr std::uint64_t kBlobSeed = 0x61636373746174;
+
+void put64(std::vector<std::uint8_t>& b, std::size_t at, std::uint64_t v) {
+  std::memcpy(b.data() + at, &v, sizeof v);
+}
+
+void fix_blob(std::vector<std::uint8_t>& b, std::size_t begin, std::size_t end) {
+  if (end - begin >= 16)
+    put64(b, end - 8, hash_bytes({b.data() + begin, end - 8 - begin}, kBlobSeed));
+}
+
+// Recomputes every checksum (and a version 2 blob length) where the layout allows; false if not.
+bool fix_checksums(std::vector<std::uint8_t>& b) {
+  if (b.size() < 16) return false;
+  const bool v1 = std::memcmp(b.data(), "PRDNFRS1", 8) == 0;
+  const bool v2 = std::memcmp(b.data(), "PRDNFRS2", 8) == 0;
+  if (!v1 && !v2) return false;
+  std::uint64_t n = 0;
+  std::memcpy(&n, b.data() + 8, sizeof n);
+  if (n > b.size() - 16 || b.size() - 16 - n < 8) return false;
+  put64(b, 16 + n, hash_bytes({b.data() + 16, n}, kRecordSeed));
+  if (v1) {
+    fix_blob(b, 24 + n, b.size());
+    return true;
+  }
+  if (b.size() - 24 - n < 16) return false;
+  const std::size_t blob = 32 + n, end = b.size() - 8;
+  put64(b, 24 + n, end - blob);
+  fix_blob(b, blob, end);
+  put64(b, end, hash_bytes({b.data(), end}, kFileSeed));
+  return true;
+}
+
+void check_accepted(const FrameRecord& rec, const FrameAccumulator& acc) {
+  FUZZ_CHECK(std::isfinite(rec.estimated_mse));
+  FUZZ_CHECK(std::isfinite(rec.spp));
+  FUZZ_CHECK(acc.state_digest() == rec.digest);
+  FUZZ_CHECK(std::isfinite(acc.total_spp()));
+  for (const auto& p : acc.history()) FUZZ_CHECK(std::isfinite(p.spp) && p.spp > 0.0);
+  // What the daemon reports of a frame must be JSON it can write (issue 11, class 9).
+  const std::string text = to_json(rec).dump();
+  // Written again, it reads back the same.
+  const std::vector<std::uint8_t> again = frame_state_bytes(rec, acc);
+  FrameRecord rec2;
+  const FrameAccumulator acc2 = parse_frame_state(again, "fuzz (rewritten)", &rec2);
+  FUZZ_CHECK(acc2.state_digest() == acc.state_digest());
+  FUZZ_CHECK(to_json(rec2).dump() == text);
+  FUZZ_CHECK(acc2.serialize() == acc.serialize());
+}
+
+bool parse_and_check(std::span<const std::uint8_t> bytes) {
+  FrameRecord rec;
+  FrameAccumulator acc;
+  try {
+    acc = parse_frame_state(bytes, "fuzz", &rec);
+  } catch (const std::exception& e) {
+    fuzz::check_json_safe(io::printable(e.what()));
+    return false;
+  }
+  check_accepted(rec, acc);
+  return true;
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerInitialize(int*, char***) {
+  // A real state of two tiny passes; its checksums spoiled and fixed must read back.
+  FrameAccumulator acc;
+  for (int k = 0; k < 2; ++k) {
+    Pass p;
+    p.colour = Image(3, 2, 3);
+    for (std::size_t i = 0; i < p.colour.data().size(); ++i) {
+      p.colour.data()[i] = 0.25f * static_cast<float>(i + k);
+    }
+    p.spp = 4.0;
+    acc.add(p, "pass" + std::to_string(k));
+  }
+  FrameRecord rec;
+  rec.frame = 1;
+  rec.passes = 2;
+  rec.spp = acc.total_spp();
+  rec.digest = acc.state_digest();
+  std::vector<std::uint8_t> bytes = frame_state_bytes(rec, acc);
+  FUZZ_CHECK(parse_and_check(bytes));
+  bytes[bytes.size() - 1] ^= 0x5a;
+  std::uint64_t n = 0;
+  std::memcpy(&n, bytes.data() + 8, sizeof n);
+  bytes[16 + n] ^= 0x5a;
+  FUZZ_CHECK(!parse_and_check(bytes));
+  FUZZ_CHECK(fix_checksums(bytes) && parse_and_check(bytes));
+  return 0;
+}
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  parse_and_check({data, size});
+  std::vector<std::uint8_t> fixed(data, data + size);
+  if (fix_checksums(fixed)) parse_and_check(fixed);
+  return 0;
+}

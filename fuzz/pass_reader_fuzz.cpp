@@ -1,0 +1,76 @@
+// Fuzz target: a pass file's bytes read exactly as the daemon reads a pass (daemon/pass_source.cpp:
+// io::read_pass over an io::MemorySource, OIIO decoding through proden's IOProxy), EXR and
+// Radiance HDR. The read limits are the daemon's kind, set small here (1 Mpixel, 64 MiB per read)
+// so that `make fuzz` runs with -malloc_limit_mb=256 -rss_limit_mb=1024: any allocation a few
+// hostile bytes can force past the header checks is a finding (issue 11, class 4).
+//
+// Properties: only proden::InputError leaves the reader, its message is JSON-safe text; a pass
+// that is accepted has the header's size within the limits, a finite spp in (0, 2^32], planes of
+// the right shape, and every string in its PassInfo JSON-safe.
+#include <cmath>
+#include <cstdint>
+#include <exception>
+#include <span>
+
+#include "fuzz_check.hpp"
+#include "proden/error.hpp"
+#include "proden/io/pass_reader.hpp"
+
+using namespace proden;
+
+namespace {
+
+io::ReadOptions options(std::uint8_t selector) {
+  io::ReadOptions o;
+  // The renderer a job names (auto, cycles, povray, generic), picked from the input's length so
+  // the file's own bytes stay a real file.
+  constexpr io::Renderer kRenderers[] = {io::Renderer::automatic, io::Renderer::cycles,
+                                         io::Renderer::povray, io::Renderer::generic};
+  o.renderer = kRenderers[selector % 4];
+  if (selector & 4) o.spp = 16.0;
+  o.limits.max_file_bytes = 1 << 20;
+  o.limits.max_pixels = 1 << 20;
+  o.limits.max_channels = 256;
+  o.limits.max_parts = 16;
+  o.limits.max_memory_bytes = 64 << 20;
+  return o;
+}
+
+void check_plane(const Image& img, const io::PassInfo& info, int channels) {
+  if (img.empty()) return;
+  FUZZ_CHECK(img.width() == info.width && img.height() == info.height);
+  FUZZ_CHECK(img.channels() == channels);
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  const io::ReadOptions o = options(static_cast<std::uint8_t>(size));
+  io::PassInfo info;
+  try {
+    const Pass pass = io::read_pass(io::MemorySource(std::span<const std::uint8_t>(data, size)),
+                                    "fuzz", o, &info);
+    FUZZ_CHECK(info.width > 0 && info.height > 0);
+    FUZZ_CHECK(static_cast<std::uint64_t>(info.width) * static_cast<std::uint64_t>(info.height) <=
+               o.limits.max_pixels);
+    FUZZ_CHECK(info.read_bytes <= o.limits.max_memory_bytes);
+    FUZZ_CHECK(std::isfinite(pass.spp) && pass.spp > 0.0 && pass.spp <= 4294967296.0);
+    FUZZ_CHECK(pass.spp == info.spp);
+    FUZZ_CHECK(!pass.colour.empty());
+    check_plane(pass.colour, info, 3);
+    check_plane(pass.albedo, info, 3);
+    check_plane(pass.normal, info, 3);
+    check_plane(pass.depth, info, 1);
+    check_plane(pass.variance, info, 3);
+    fuzz::check_json_safe(info.format);
+    fuzz::check_json_safe(info.layer);
+    fuzz::check_json_safe(info.pixel_type);
+    for (const auto& c : info.channels) fuzz::check_json_safe(c);
+    fuzz::check_json_safe(info.to_string());
+  } catch (const InputError& e) {
+    fuzz::check_json_safe(e.what());
+    fuzz::check_json_safe(e.reason());
+  }
+  // Anything else (std::bad_alloc, std::length_error, an OIIO exception) escapes and is a finding.
+  return 0;
+}
