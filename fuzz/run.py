@@ -176,7 +176,9 @@ def report(args):
             lines.append("| %s | 0 | - | - | - | - | - | - | - | not run |" % t)
             continue
         execs = sum(s.get("executions", 0) for s in ss)
-        wall = sum(s.get("wall_seconds", 0) for s in ss)
+        # A session that stopped on a crash prints no wall time: executions / its exec/s.
+        wall = sum(s.get("wall_seconds") or (s.get("executions", 0) / s["exec_per_sec"]
+                                             if s.get("exec_per_sec") else 0) for s in ss)
         rate = execs / wall if wall else 0
         crashes = sum(s["crashes"] for s in ss)
         last = ss[-1]
@@ -190,7 +192,7 @@ def report(args):
                 need / 1e6, need / rate / 3600 if rate else float("inf"), rate)
             if open_crashes:
                 verdict = "crash open"
-        lines.append("| %s | %d | %s | %d | %d | %d (%d) | %s | %s | %s | %s |" % (
+        lines.append("| %s | %d | %s | %.0f | %.0f | %d (%d) | %s | %s | %s | %s |" % (
             t, len(ss), "{:,}".format(execs), wall, rate, crashes, open_crashes,
             last.get("coverage_edges", "?"), last.get("corpus", "?"),
             max(s.get("peak_rss_mb", 0) for s in ss), verdict))
