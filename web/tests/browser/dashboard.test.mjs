@@ -1,7 +1,7 @@
 // The dashboard in Debian's headless Chromium against the real daemon on loopback, fed real passes
 // (samples/renders) while the page is open: live thumbnails and charts without a reload, the wipe,
-// pause/resume from the page, recovery after a daemon restart, keyboard navigation, the token
-// prompt. Screenshots go to ARTIFACT_DIR (docs/dashboard.md shows three of them).
+// pause/resume from the page, the farm integration's converged badge, recovery after a daemon
+// restart, keyboard navigation, the token prompt. Screenshots go to ARTIFACT_DIR (docs/dashboard.md shows three of them).
 import assert from 'node:assert/strict';
 import { copyFileSync } from 'node:fs';
 import { after, before, describe, it } from 'node:test';
@@ -155,6 +155,21 @@ describe('dashboard against the real daemon', () => {
     await page.locator('.job-head button.pause').click();
     await waitFor(async () => (await d.request('GET', `/api/v1/jobs/${job.id}`)).body.state === 'active', 'resumed');
     await waitFor(async () => (await tileVersion(5)) > v, 'frame 5 to update after resuming');
+  });
+
+  it('badges a frame converged when the farm integration says so', async () => {
+    // A job with a target every frame of 4 cornell passes meets with confidence (issue 13).
+    const farm = await d.createJob('farmshot', { target: { relmse: 10 }, min_passes: 3 });
+    for (let k = 0; k < 4; ++k) placePass(farm.watch, String(k).padStart(2, '0'), 1, sample('cornell', k));
+    await waitFor(async () => (await d.frames(farm.id)).get(1)?.converged === true, 'the daemon to call frame 1 converged');
+    await page.goto(`${d.url}/#/job/${farm.id}`);
+    const badge = page.locator('.tile[data-frame="1"] .status');
+    await waitFor(async () => /converged/.test((await badge.textContent().catch(() => '')) ?? ''), 'the tile to say converged');
+    assert.match(await badge.getAttribute('class'), /\bconverged\b/);
+    // Frames of the other job (no target) never say so.
+    await page.goto(`${d.url}/#/job/${job.id}`);
+    await page.locator('.tile[data-frame="1"]').waitFor();
+    assert.equal(await page.locator('.tile .status.converged').count(), 0);
   });
 
   it('recovers after the daemon restarts', async () => {
