@@ -1,7 +1,8 @@
 // The dashboard in Debian's headless Chromium against the real daemon on loopback, fed real passes
 // (samples/renders) while the page is open: live thumbnails and charts without a reload, the wipe,
 // pause/resume from the page, the farm integration's converged badge, recovery after a daemon
-// restart, keyboard navigation, the token prompt. Screenshots go to ARTIFACT_DIR (docs/dashboard.md shows three of them).
+// restart, keyboard navigation, the token prompt. Screenshots go to ARTIFACT_DIR (docs/dashboard.md
+// shows three of them).
 import assert from 'node:assert/strict';
 import { copyFileSync } from 'node:fs';
 import { after, before, describe, it } from 'node:test';
