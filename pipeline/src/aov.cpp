@@ -109,7 +109,7 @@ std::vector<AovChannel> AovAccumulator::result() const {
 std::vector<std::uint8_t> AovAccumulator::serialize() const {
   if (channels_.empty() && attributes_.empty()) return {};
   detail::Writer w;
-  w.out.insert(w.out.end(), kMagic, kMagic + sizeof(kMagic));
+  for (const char c : kMagic) w.put(c);  // (a range insert trips GCC 12's -Wstringop-overflow)
   w.put<std::uint32_t>(static_cast<std::uint32_t>(width_));
   w.put<std::uint32_t>(static_cast<std::uint32_t>(height_));
   w.put<std::uint64_t>(attributes_.size());
