@@ -10,6 +10,7 @@ import socket
 import subprocess
 import tempfile
 import time
+import unittest
 
 BINARY = os.environ.get("PRODEN_BINARY", "build/proden")
 SAMPLES = os.environ.get("PRODEN_SAMPLES_DIR", "samples")
@@ -253,3 +254,21 @@ def place_atomic(src, dst):
     tmp = os.path.join(os.path.dirname(dst), "." + os.path.basename(dst) + ".tmp")
     shutil.copyfile(src, tmp)
     os.rename(tmp, dst)
+
+
+class SharedDaemonTest(unittest.TestCase):
+    """One daemon (DAEMON_CONFIG, if set) on a temporary root for all the tests of a class; it
+    must stop cleanly when they are done."""
+    DAEMON_CONFIG = None
+
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = TempRoot()
+        cls.root = cls.tmp.__enter__()
+        cls.d = Daemon(cls.root, config=cls.DAEMON_CONFIG).start()
+
+    @classmethod
+    def tearDownClass(cls):
+        rc = cls.d.stop()
+        cls.tmp.__exit__(None, None, None)
+        assert rc == 0, rc

@@ -9,25 +9,15 @@ import sys
 import unittest
 
 sys.path.insert(0, os.path.dirname(__file__))
-from harness import BINARY, CORNELL, Daemon, TempRoot, wait_until  # noqa: E402
+from harness import SharedDaemonTest, BINARY, CORNELL, Daemon, TempRoot, wait_until  # noqa: E402
 
 TOKEN = "s3cret-token-0123456789abcdef"
 LIMITS = {"max_body_bytes": 4096, "max_upload_bytes": 400000, "max_header_bytes": 4096,
           "request_timeout_ms": 2000, "idle_timeout_ms": 2000}
 
 
-class ApiTest(unittest.TestCase):
-    @classmethod
-    def setUpClass(cls):
-        cls.tmp = TempRoot()
-        cls.root = cls.tmp.__enter__()
-        cls.d = Daemon(cls.root, config={"limits": LIMITS}).start()
-
-    @classmethod
-    def tearDownClass(cls):
-        rc = cls.d.stop()
-        cls.tmp.__exit__(None, None, None)
-        assert rc == 0, rc
+class ApiTest(SharedDaemonTest):
+    DAEMON_CONFIG = {"limits": LIMITS}
 
     def assert_error(self, status, body, want_status, want_code=None):
         self.assertEqual(status, want_status, body)

@@ -11,7 +11,7 @@ import tempfile
 import unittest
 
 sys.path.insert(0, os.path.dirname(__file__))
-from harness import BINARY, CORNELL, Daemon, TempRoot  # noqa: E402
+from harness import SharedDaemonTest, BINARY, CORNELL, Daemon, TempRoot  # noqa: E402
 
 HEADER_FIELDS = ["proden:passes", "proden:spp", "proden:inputs", "proden:denoiser", "proden:mixer",
                  "proden:mixer_weights", "proden:divergence", "proden:t_test",
@@ -51,18 +51,7 @@ def channels(attrs):
     return names
 
 
-class PublishTest(unittest.TestCase):
-    @classmethod
-    def setUpClass(cls):
-        cls.tmp = TempRoot()
-        cls.root = cls.tmp.__enter__()
-        cls.d = Daemon(cls.root).start()
-
-    @classmethod
-    def tearDownClass(cls):
-        rc = cls.d.stop()
-        cls.tmp.__exit__(None, None, None)
-        assert rc == 0, rc
+class PublishTest(SharedDaemonTest):
 
     def publish(self, name, pipeline=None):
         """A job fed CORNELL[0], CORNELL[1] by upload; returns (job id, frame status, EXR bytes)."""

@@ -10,7 +10,7 @@ import time
 import unittest
 
 sys.path.insert(0, os.path.dirname(__file__))
-from harness import BINARY, CORNELL, Daemon, SseClient, TempRoot, place_atomic, wait_until  # noqa: E402
+from harness import SharedDaemonTest, BINARY, CORNELL, Daemon, SseClient, TempRoot, place_atomic, wait_until  # noqa: E402
 
 
 def read(path):
@@ -18,18 +18,7 @@ def read(path):
         return f.read()
 
 
-class RobustnessTest(unittest.TestCase):
-    @classmethod
-    def setUpClass(cls):
-        cls.tmp = TempRoot()
-        cls.root = cls.tmp.__enter__()
-        cls.d = Daemon(cls.root).start()
-
-    @classmethod
-    def tearDownClass(cls):
-        rc = cls.d.stop()
-        cls.tmp.__exit__(None, None, None)
-        assert rc == 0, rc
+class RobustnessTest(SharedDaemonTest):
 
     def test_absurd_spp_refused(self):
         for spp in (1e300, 0, -1, 1e-300, 2e6, "4"):
