@@ -42,6 +42,8 @@ class NlMeansDenoiser final : public Denoiser {
   std::string isa() const;  // the kernel build in use
 
  private:
+  // One block of the output (denoise() splits `out` so that the kernel's working set fits L2).
+  void denoise_block(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const;
   NlMeansParams params_;
   int build_ = 0;
 };
