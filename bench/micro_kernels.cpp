@@ -5,6 +5,8 @@
 #include <benchmark/benchmark.h>
 
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <random>
 #include <string>
 #include <vector>
@@ -85,6 +87,103 @@ void BM_NlMeans(benchmark::State& state) {
                  (features ? ", features" : ", colour only"));
 }
 BENCHMARK(BM_NlMeans)->Args({0, 1})->Args({1, 1})->Args({0, 0})->Args({1, 0});
+
+// The NL-means kernel per build (0 baseline, 1 avx2, 2 avx512), with the Jacobian and features.
+void BM_NlMeansIsa(benchmark::State& state) {
+  const std::vector<std::string> isas = nlmeans_isas_available();
+  const auto which = static_cast<std::size_t>(state.range(0));
+  if (which >= isas.size()) {
+    state.SkipWithError("build not available on this CPU");
+    return;
+  }
+  const Frame& f = frame();
+  NlMeansParams p;
+  p.isa = isas[which];
+  const NlMeansDenoiser nl(p);
+  DenoiseInputs in;
+  in.width = kW;
+  in.height = kW;
+  in.colour = view_of(f.x);
+  in.variance = view_of(f.var);
+  in.albedo = view_of(f.albedo);
+  in.normal = view_of(f.normal);
+  in.depth = view_of(f.depth);
+  in.albedo_variance = view_of(f.zeros3);
+  in.normal_variance = view_of(f.zeros3);
+  in.depth_variance = view_of(f.zeros1);
+  Buffer y(kOut, 3), d(kOut, 3);
+  for (auto _ : state) {
+    nl.denoise(in, kOut, y, &d);
+    benchmark::DoNotOptimize(y.at(kOut.x0, kOut.y0, 0));
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(kOut.area()));
+  state.SetLabel(p.isa + ", with Jacobian, features");
+}
+BENCHMARK(BM_NlMeansIsa)->Arg(0)->Arg(1)->Arg(2);
+
+// The machine's peaks in the same run, for the kernels' share of them: single-precision FMA
+// throughput (AVX-512 when the CPU has it, else AVX2; 2 flops per lane per FMA, 16 independent
+// chains) and copy bandwidth of a buffer well beyond the caches (bytes read + written).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+typedef float V16 __attribute__((vector_size(64)));
+typedef float V8 __attribute__((vector_size(32)));
+template <class V>
+[[gnu::always_inline]] inline void fma_chains(V* acc, V a, V b, std::int64_t n) {
+  for (std::int64_t i = 0; i < n; ++i) {
+    for (int j = 0; j < 16; ++j) acc[j] = acc[j] * a + b;
+  }
+}
+__attribute__((target("avx512f"), optimize("fp-contract=fast"))) float fma_avx512(std::int64_t n) {
+  V16 acc[16];
+  for (int j = 0; j < 16; ++j) acc[j] = V16{} + static_cast<float>(j);
+  fma_chains(acc, V16{} + 0.999999f, V16{} + 1e-7f, n);
+  float s = 0;
+  for (int j = 0; j < 16; ++j) s += acc[j][0];
+  return s;
+}
+__attribute__((target("avx2,fma"), optimize("fp-contract=fast"))) float fma_avx2(std::int64_t n) {
+  V8 acc[16];
+  for (int j = 0; j < 16; ++j) acc[j] = V8{} + static_cast<float>(j);
+  fma_chains(acc, V8{} + 0.999999f, V8{} + 1e-7f, n);
+  float s = 0;
+  for (int j = 0; j < 16; ++j) s += acc[j][0];
+  return s;
+}
+
+void BM_PeakFma(benchmark::State& state) {
+  __builtin_cpu_init();
+  const bool avx512 = __builtin_cpu_supports("avx512f");
+  if (!avx512 && !(__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"))) {
+    state.SkipWithError("no AVX2+FMA");
+    return;
+  }
+  constexpr std::int64_t kIter = 1 << 16;
+  for (auto _ : state) {
+    std::int64_t n = kIter;
+    benchmark::DoNotOptimize(n);  // not loop-invariant: the call is not hoisted
+    benchmark::DoNotOptimize(avx512 ? fma_avx512(n) : fma_avx2(n));
+  }
+  const int lanes = avx512 ? 16 : 8;
+  state.counters["GFLOPs"] =
+      benchmark::Counter(static_cast<double>(state.iterations()) * kIter * 16 * lanes * 2 * 1e-9,
+                         benchmark::Counter::kIsRate);
+  state.SetLabel(avx512 ? "avx512 FMA" : "avx2 FMA");
+}
+BENCHMARK(BM_PeakFma);
+#endif
+
+void BM_MemCopy(benchmark::State& state) {
+  const std::size_t n = std::size_t{64} << 20;  // 256 MiB of floats each way
+  std::vector<float> a(n / 4, 1.0f), b(n / 4, 0.0f);
+  for (auto _ : state) {
+    std::memcpy(b.data(), a.data(), n);
+    benchmark::DoNotOptimize(b.data());
+    benchmark::ClobberMemory();
+  }
+  state.SetBytesProcessed(state.iterations() * static_cast<int64_t>(2 * n));
+  state.SetLabel("read + write");
+}
+BENCHMARK(BM_MemCopy)->Unit(benchmark::kMillisecond);
 
 void BM_ClosedFormMixer(benchmark::State& state) {
   const Frame& f = frame();
