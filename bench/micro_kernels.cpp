@@ -1,7 +1,8 @@
 // Google Benchmark microbenchmarks of the pipeline's hot loops on small inputs (one tile):
 // the NL-means offset kernel through NlMeansDenoiser::denoise (with and without the Jacobian
-// diagonal, with and without features), the closed-form mixer, the t-test rescale and
-// FrameAccumulator::add. Items/s are pixels/s. Run: build-bench/bench/proden_micro_kernels.
+// diagonal, with and without features; per kernel build; and over a whole 1080p frame), the
+// closed-form mixer, the t-test rescale and FrameAccumulator::add, and the machine's FMA and
+// copy peaks. Items/s are pixels/s. Run: build-bench/bench/proden_micro_kernels.
 #include <benchmark/benchmark.h>
 
 #include <cmath>
@@ -11,9 +12,11 @@
 #include <string>
 #include <vector>
 
+#include "bench_common.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/denoise/nlmeans.hpp"
 #include "proden/mixer.hpp"
+#include "proden/progressive.hpp"
 #include "proden/region.hpp"
 #include "proden/tstat.hpp"
 
@@ -120,6 +123,39 @@ void BM_NlMeansIsa(benchmark::State& state) {
   state.SetLabel(p.isa + ", with Jacobian, features");
 }
 BENCHMARK(BM_NlMeansIsa)->Arg(0)->Arg(1)->Arg(2);
+
+// One 1920x1080 frame (bench_common's synthetic passes, 8 x 4 spp, accumulated: real variances
+// and feature variances), every pixel denoised once in the pipeline's 256-pixel tiles, 1 thread:
+// CPU time per iteration = CPU seconds per 1080p frame, with and without the Jacobian.
+const FrameEstimate& frame_1080p() {
+  static const FrameEstimate est = [] {
+    FrameAccumulator acc;
+    for (int k = 0; k < 8; ++k) acc.add(bench::synthetic_pass(1920, 1080, k, 4), std::to_string(k));
+    return acc.estimate();
+  }();
+  return est;
+}
+
+void BM_NlMeansFrame(benchmark::State& state) {
+  const FrameEstimate& est = frame_1080p();
+  const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
+  const bool jac = state.range(0) != 0;
+  const NlMeansDenoiser nl{NlMeansParams{}};
+  constexpr int kT = 256;
+  for (auto _ : state) {
+    for (int y0 = 0; y0 < din.height; y0 += kT) {
+      for (int x0 = 0; x0 < din.width; x0 += kT) {
+        const Rect t{x0, y0, std::min(x0 + kT, din.width), std::min(y0 + kT, din.height)};
+        Buffer y(t, 3), d(t, 3);
+        nl.denoise(din, t, y, jac ? &d : nullptr);
+        benchmark::DoNotOptimize(y.at(t.x0, t.y0, 0));
+      }
+    }
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(din.width) * din.height);
+  state.SetLabel(std::string("1920x1080, tiles 256, ") + (jac ? "with Jacobian" : "no Jacobian"));
+}
+BENCHMARK(BM_NlMeansFrame)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
 
 // The machine's peaks in the same run, for the kernels' share of them: single-precision FMA
 // throughput (AVX-512 when the CPU has it, else AVX2; 2 flops per lane per FMA, 16 independent
