@@ -48,10 +48,15 @@ struct Kernel {
   const float* dep = nullptr;
   float k2, alpha, eps, inv_patch3, inv_kf2, tau, depth_scale;
   bool features, derivative;
-  // Scratch.
-  float* drow;          // ewv: one row's colour distance
+  // Scratch. Pair planes over E with a margin of R (kL more on the right): the colour distance of
+  // offsets delta and -delta, and the pairs' inverse denominators 1 / (eps + k^2 (v_a +
+  // v_{a+delta})) (3 channel planes gis_c apart); row stride gs, g0 = index of E's (0, 0).
+  float *gdp, *gdm, *gis;
+  std::ptrdiff_t gs, g0, gis_c;
+  // Feature planes of delta and -delta over the output with the same margins (stride fs, f0).
+  float *gfp, *gfm;
+  std::ptrdiff_t fs, f0;
   float* hring;         // (2F + 1) * owv: row sums of the last 2F + 1 rows
-  float* isring;        // (2F + 1) * 3 * ewv: 1 / (eps + k^2 (v_a + v_{a+delta})) of those rows
   const float** hrows;  // 2F + 1 pointers into hring
   float* w;             // owv: one row of weights
   // Accumulators (per output row: one row each, per channel where 3, n_acc apart).
@@ -110,16 +115,16 @@ enum class Build { baseline, avx2, avx512 };
 struct BuildInfo {
   const char* name;
   int lanes;
-  void (*offset)(const Kernel&, int, int);
+  void (*pass)(const Kernel&, int, int);
 };
 
 BuildInfo info(Build b) {
 #ifdef PRODEN_NLMEANS_X86
-  if (b == Build::avx512) return {"avx512", 16, avx512::offset};
-  if (b == Build::avx2) return {"avx2", 8, avx2::offset};
+  if (b == Build::avx512) return {"avx512", 16, avx512::pass};
+  if (b == Build::avx2) return {"avx2", 8, avx2::pass};
 #endif
   (void)b;
-  return {"baseline", 4, portable::offset};
+  return {"baseline", 4, portable::pass};
 }
 
 std::vector<Build> builds_available() {
@@ -203,7 +208,7 @@ void NlMeansDenoiser::denoise_block(const DenoiseInputs& in, const Rect& out, Bu
   const std::size_t owv = round_up(static_cast<std::size_t>(ow), L);
   const std::size_t ewv = round_up(owv + 2 * static_cast<std::size_t>(F), L);
   // Channel rows run on to the right so that every vector load stays inside them.
-  const std::size_t cw = ewv + 2 * static_cast<std::size_t>(R);
+  const std::size_t cw = ewv + 2 * static_cast<std::size_t>(R) + L;
   const Rect wide{prect.x0, prect.y0, prect.x0 + static_cast<int>(cw), prect.y1};
   const bool feats = params_.use_features;
   const bool has_alb = feats && in.albedo.valid(), has_nrm = feats && in.normal.valid();
@@ -251,12 +256,29 @@ void NlMeansDenoiser::denoise_block(const DenoiseInputs& in, const Rect& out, Bu
   const std::size_t nr = 2 * static_cast<std::size_t>(F) + 1;
   // Per output row: wsum, self, num (3), and the derivative's A (3), B (3).
   const std::size_t acc_rs = (k.derivative ? 11 : 5) * owv;
-  std::vector<float> drow(ewv), hring(nr * owv), isring(k.derivative ? nr * 3 * ewv : 0);
+  const std::size_t gs = ewv + 2 * static_cast<std::size_t>(R) + L;
+  const std::size_t gh = static_cast<std::size_t>(k.eh + 2 * R);
+  const std::size_t fs = owv + 2 * static_cast<std::size_t>(R) + L;
+  const std::size_t fh = static_cast<std::size_t>(oh + 2 * R);
+  std::vector<float> gdp(gs * gh, 0.0f), gdm(gs * gh, 0.0f);
+  std::vector<float> gis(k.derivative ? 3 * gs * gh : 0, 0.0f);
+  std::vector<float> gfp(k.features ? fs * fh : 0, 0.0f), gfm(k.features ? fs * fh : 0, 0.0f);
+  std::vector<float> hring(nr * owv);
   std::vector<const float*> hrows(nr);
   std::vector<float> wrow(owv), acc(acc_rs * static_cast<std::size_t>(oh), 0.0f);
-  k.drow = drow.data();
+  k.gdp = gdp.data();
+  k.gdm = gdm.data();
+  k.gis = gis.data();
+  k.gs = static_cast<std::ptrdiff_t>(gs);
+  k.g0 =
+      static_cast<std::ptrdiff_t>(static_cast<std::size_t>(R) * gs + static_cast<std::size_t>(R));
+  k.gis_c = static_cast<std::ptrdiff_t>(gs * gh);
+  k.gfp = gfp.data();
+  k.gfm = gfm.data();
+  k.fs = static_cast<std::ptrdiff_t>(fs);
+  k.f0 =
+      static_cast<std::ptrdiff_t>(static_cast<std::size_t>(R) * fs + static_cast<std::size_t>(R));
   k.hring = hring.data();
-  k.isring = isring.data();
   k.hrows = hrows.data();
   k.w = wrow.data();
   k.n_acc = static_cast<std::ptrdiff_t>(owv);
@@ -271,8 +293,9 @@ void NlMeansDenoiser::denoise_block(const DenoiseInputs& in, const Rect& out, Bu
   k.width = in.width;
   k.height = in.height;
 
-  for (int dy = -R; dy <= R; ++dy) {
-    for (int dx = -R; dx <= R; ++dx) build.offset(k, dx, dy);
+  // delta = 0, then every pair (delta, -delta) once: delta with dy > 0, or dy = 0 and dx > 0.
+  for (int dy = 0; dy <= R; ++dy) {
+    for (int dx = dy == 0 ? 0 : -R; dx <= R; ++dx) build.pass(k, dx, dy);
   }
 
   for (int oy = 0; oy < oh; ++oy) {
