@@ -56,9 +56,9 @@ struct Kernel {
   // Feature planes of delta and -delta over the output with the same margins (stride fs, f0).
   float *gfp, *gfm;
   std::ptrdiff_t fs, f0;
-  float* hring;         // (2F + 1) * owv: row sums of the last 2F + 1 rows
-  const float** hrows;  // 2F + 1 pointers into hring
-  float* w;             // owv: one row of weights
+  float* hring;         // 2 (2F + 1) owv: row sums of the last 2F + 1 rows, per offset
+  const float** hrows;  // 2 (2F + 1) pointers into hring
+  float* w;             // 2 owv: one row of weights per offset
   // Accumulators (per output row: one row each, per channel where 3, n_acc apart).
   std::ptrdiff_t n_acc, acc_rs;
   float* wsum;
@@ -263,9 +263,9 @@ void NlMeansDenoiser::denoise_block(const DenoiseInputs& in, const Rect& out, Bu
   std::vector<float> gdp(gs * gh, 0.0f), gdm(gs * gh, 0.0f);
   std::vector<float> gis(k.derivative ? 3 * gs * gh : 0, 0.0f);
   std::vector<float> gfp(k.features ? fs * fh : 0, 0.0f), gfm(k.features ? fs * fh : 0, 0.0f);
-  std::vector<float> hring(nr * owv);
-  std::vector<const float*> hrows(nr);
-  std::vector<float> wrow(owv), acc(acc_rs * static_cast<std::size_t>(oh), 0.0f);
+  std::vector<float> hring(2 * nr * owv);
+  std::vector<const float*> hrows(2 * nr);
+  std::vector<float> wrow(2 * owv), acc(acc_rs * static_cast<std::size_t>(oh), 0.0f);
   k.gdp = gdp.data();
   k.gdm = gdm.data();
   k.gis = gis.data();
