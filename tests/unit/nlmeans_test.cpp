@@ -313,3 +313,54 @@ TEST_CASE("NL-means: the Jacobian does not change y, and an unknown build is ref
   bad.isa = "sse9";
   CHECK_THROWS_AS(NlMeansDenoiser(bad), std::invalid_argument);
 }
+
+TEST_CASE("NL-means reads nothing beyond radius() of its output", "[nlmeans][tiles]") {
+  // The Monte-Carlo probe and the pipeline hand views over just the region the denoiser reads;
+  // the vector kernel's padding must not read past it (ASan checks the reads, this the values).
+  const Scene s = scene(41, 30, true, 13);
+  NlMeansParams p;
+  p.search_radius = 3;
+  p.patch_radius = 2;
+  const Rect image{0, 0, s.w, s.h};
+  for (const std::string& isa : nlmeans_isas_available()) {
+    p.isa = isa;
+    const NlMeansDenoiser nl(p);
+    for (const Rect out : {Rect{5, 4, 23, 17}, Rect{30, 20, 41, 30}, Rect{0, 0, 3, 30}}) {
+      const Rect reads = out.expanded(nl.radius()).intersect(image);
+      auto crop = [&](const Image& img) {
+        Buffer b(reads, img.channels());
+        for (int c = 0; c < img.channels(); ++c) {
+          for (int y = reads.y0; y < reads.y1; ++y) {
+            for (int x = reads.x0; x < reads.x1; ++x) b.at(x, y, c) = img.at(x, y, c);
+          }
+        }
+        return b;
+      };
+      const Buffer x = crop(s.x), var = crop(s.var), alb = crop(s.alb), alb_v = crop(s.alb_v),
+                   nrm = crop(s.nrm), nrm_v = crop(s.nrm_v), dep = crop(s.dep);
+      DenoiseInputs in = inputs(s);
+      in.colour = x.view();
+      in.variance = var.view();
+      in.albedo = alb.view();
+      in.albedo_variance = alb_v.view();
+      in.normal = nrm.view();
+      in.normal_variance = nrm_v.view();
+      in.depth = dep.view();
+      Buffer y(out, 3), d(out, 3);
+      nl.denoise(in, out, y, &d);
+      const Result want = run(s, p, out);
+      INFO("isa " << isa << " output " << out.to_string());
+      bool same = true;
+      for (int c = 0; c < 3; ++c) {
+        for (int yy = out.y0; yy < out.y1; ++yy) {
+          for (int xx = out.x0; xx < out.x1; ++xx) {
+            const float g[2] = {y.at(xx, yy, c), d.at(xx, yy, c)};
+            const float w[2] = {want.y.at(xx, yy, c), want.d.at(xx, yy, c)};
+            same = same && std::memcmp(g, w, sizeof g) == 0;
+          }
+        }
+      }
+      CHECK(same);
+    }
+  }
+}

@@ -17,16 +17,20 @@ namespace {
 
 // Copies channel c of `v` over `rect` (which may extend past the image) into channel row `slot`
 // of a row-interleaved block (row stride `rs` floats, channel rows of rect.width() floats), with
-// replicate padding: position (x, y) holds the image pixel (clamp(x), clamp(y)). Interleaving the
-// channels by row keeps the kernel's many planes in a few long memory streams.
+// replicate padding: position (x, y) holds the image pixel (clamp(x), clamp(y)). Columns past
+// `x_end` (the region the denoiser reads, radius() around the output: all a view must cover)
+// only feed vector lanes nobody reads; they repeat column x_end - 1. Interleaving the channels
+// by row keeps the kernel's many planes in a few long memory streams.
 void pad_into(float* block, std::size_t rs, int slot, const View& v, int c, const Rect& rect,
-              int width, int height) {
+              int x_end, int width, int height) {
   const std::size_t cw = static_cast<std::size_t>(rect.width());
   for (int y = rect.y0; y < rect.y1; ++y) {
     const int sy = std::clamp(y, 0, height - 1);
     float* dst =
         block + static_cast<std::size_t>(y - rect.y0) * rs + static_cast<std::size_t>(slot) * cw;
-    for (int x = rect.x0; x < rect.x1; ++x) *dst++ = v.at(std::clamp(x, 0, width - 1), sy, c);
+    for (int x = rect.x0; x < rect.x1; ++x) {
+      *dst++ = v.at(std::clamp(std::min(x, x_end - 1), 0, width - 1), sy, c);
+    }
   }
 }
 
@@ -219,7 +223,7 @@ void NlMeansDenoiser::denoise_block(const DenoiseInputs& in, const Rect& out, Bu
   int slot = 0;
   // Pads channel c of v (zeros when v is invalid) into the next slot; returns its first pixel.
   auto add = [&](const View& v, int c) {
-    if (v.valid()) pad_into(block.data(), ps, slot, v, c, wide, in.width, in.height);
+    if (v.valid()) pad_into(block.data(), ps, slot, v, c, wide, prect.x1, in.width, in.height);
     return block.data() + static_cast<std::size_t>(slot++) * cw;
   };
   Kernel k{};
