@@ -28,9 +28,15 @@ void pad_into(float* block, std::size_t rs, int slot, const View& v, int c, cons
     const int sy = std::clamp(y, 0, height - 1);
     float* dst =
         block + static_cast<std::size_t>(y - rect.y0) * rs + static_cast<std::size_t>(slot) * cw;
-    for (int x = rect.x0; x < rect.x1; ++x) {
-      *dst++ = v.at(std::clamp(std::min(x, x_end - 1), 0, width - 1), sy, c);
-    }
+    // Source column clamp(min(x, x_end - 1), 0, width - 1): the left edge, a contiguous run, then
+    // the last column read, repeated.
+    const int mid0 = std::clamp(rect.x0, 0, rect.x1), mid1 = std::max(mid0, std::min(x_end, width));
+    const int last = std::min(x_end, width) - 1;
+    const float* src = v.data + v.index(0, sy, c);
+    int x = rect.x0;
+    for (; x < mid0; ++x) *dst++ = src[0];
+    for (; x < std::min(mid1, rect.x1); ++x) *dst++ = src[x];
+    for (; x < rect.x1; ++x) *dst++ = src[last];
   }
 }
 
@@ -312,9 +318,9 @@ void NlMeansDenoiser::denoise_block(const DenoiseInputs& in, const Rect& out, Bu
       for (int c = 0; c < 3; ++c) {
         const std::size_t ci = static_cast<std::size_t>(c) * owv + i;
         const float yv = k.num[row + ci] / W;
-        y_out.at(out.x0 + ox, out.y0 + oy, c) = yv;
+        y_out.row(out.y0 + oy, c)[out.x0 - y_out.rect().x0 + ox] = yv;
         if (k.derivative) {
-          dydx_out->at(out.x0 + ox, out.y0 + oy, c) =
+          dydx_out->row(out.y0 + oy, c)[out.x0 - dydx_out->rect().x0 + ox] =
               self[i] / W + (k.A[row + ci] - yv * k.B[row + ci]) / W;
         }
       }
