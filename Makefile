@@ -50,9 +50,11 @@ build: deps
 test: build test-asan test-tsan fuzz-smoke
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS) -LE soak
 
+# Debug (assertions on) at -O1: the sanitizers' usual level, several times faster than -O0 for the
+# pipeline's tests (the tiled-equals-whole test took 5.5 minutes at -O0), stack traces intact.
 asan: deps
-	cmake -S . -B $(ASAN_DIR) -DCMAKE_BUILD_TYPE=Debug -DPRODEN_SANITIZE=ON -DPRODEN_WERROR=$(WERROR) \
-	      -DPRODEN_BUILD_BENCH=OFF
+	cmake -S . -B $(ASAN_DIR) -DCMAKE_BUILD_TYPE=Debug "-DCMAKE_CXX_FLAGS_DEBUG=-g -O1" \
+	      -DPRODEN_SANITIZE=ON -DPRODEN_WERROR=$(WERROR) -DPRODEN_BUILD_BENCH=OFF
 	cmake --build $(ASAN_DIR) -j $(JOBS) --target proden_unit_tests proden_daemon_tests
 
 # The sanitizer configuration runs the unit tests and the daemon's unit tests (the CLI/integration
