@@ -50,9 +50,11 @@ build: deps
 test: build test-asan test-tsan fuzz-smoke
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS) -LE soak
 
+# Debug (assertions on) at -O1: the sanitizers' usual level, several times faster than -O0 for the
+# pipeline's tests (the tiled-equals-whole test took 5.5 minutes at -O0), stack traces intact.
 asan: deps
-	cmake -S . -B $(ASAN_DIR) -DCMAKE_BUILD_TYPE=Debug -DPRODEN_SANITIZE=ON -DPRODEN_WERROR=$(WERROR) \
-	      -DPRODEN_BUILD_BENCH=OFF
+	cmake -S . -B $(ASAN_DIR) -DCMAKE_BUILD_TYPE=Debug "-DCMAKE_CXX_FLAGS_DEBUG=-g -O1" \
+	      -DPRODEN_SANITIZE=ON -DPRODEN_WERROR=$(WERROR) -DPRODEN_BUILD_BENCH=OFF
 	cmake --build $(ASAN_DIR) -j $(JOBS) --target proden_unit_tests proden_daemon_tests
 
 # The sanitizer configuration runs the unit tests and the daemon's unit tests (the CLI/integration
@@ -70,9 +72,8 @@ tsan: deps
 	cmake --build $(TSAN_DIR) -j $(JOBS) --target proden proden_daemon_tests
 
 test-tsan: tsan
-# service_publish also runs the CLI, whose TBB loops TSan cannot follow (Debian's libtbb is not
-# instrumented; tests/tsan.supp): it runs in the Release tree only.
-	cd $(TSAN_DIR) && ctest --output-on-failure -L 'daemon|service' -E '^service_publish$$' -j $(JOBS)
+# A TSan build runs TBB loops on their caller's thread (service/thread_limit.hpp), the CLI's too.
+	cd $(TSAN_DIR) && ctest --output-on-failure -L 'daemon|service' -j $(JOBS)
 
 run: build
 	OUT_DIR=$(OUT_DIR) tools/run-daemon.sh

@@ -78,10 +78,10 @@ void AovAccumulator::add(const std::vector<AovChannel>& in, double spp,
       it->mean[p] += spp / it->weight[p] * (x - it->mean[p]);
     }
   }
-  for (const auto& [k, v] : attributes) {
+  for (const auto& kv : attributes) {  // not a structured binding: clang 14 cannot capture one
     const bool have = std::any_of(attributes_.begin(), attributes_.end(),
-                                  [&](const auto& a) { return a.first == k; });
-    if (!have) attributes_.emplace_back(k, v);
+                                  [&](const auto& a) { return a.first == kv.first; });
+    if (!have) attributes_.push_back(kv);
   }
 }
 

@@ -2,7 +2,6 @@
 // against a reference), info (what a pass file holds).
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
-#include <tbb/global_control.h>
 
 #include <CLI/CLI.hpp>
 #include <memory>
@@ -12,6 +11,7 @@
 #include "cli/wait.hpp"
 #include "daemon/serve.hpp"
 #include "proden/protocol/publish.hpp"
+#include "thread_limit.hpp"
 
 using namespace proden;
 
@@ -20,6 +20,8 @@ int main(int argc, char** argv) {
   logger->set_pattern("proden: %^%l%$: %v");
   spdlog::set_default_logger(logger);
 
+  // Before parsing: `proden serve` runs inside its parse callback (one thread in a TSan build).
+  auto limit = limit_threads(0);
   CLI::App app{"proden: progressive denoising of render-farm passes"};
   app.set_version_flag("--version", protocol::software());
   app.require_subcommand(1);
@@ -80,11 +82,7 @@ int main(int argc, char** argv) {
   const auto r = io::parse_renderer(renderer).value_or(io::Renderer::automatic);
   ev.input.renderer = inf.input.renderer = r;
 
-  std::unique_ptr<tbb::global_control> limit;
-  if (threads > 0) {
-    limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
-                                                  static_cast<std::size_t>(threads));
-  }
+  if (threads > 0) limit = limit_threads(threads);
   try {
     if (den.command->parsed()) return cli::run_denoise(den.options);
     if (e->parsed()) return cli::run_eval(ev);

@@ -152,7 +152,15 @@ std::optional<JobStore::LoadedJob> JobStore::load_job(
     std::ifstream in(jp);
     job.spec = protocol::job_from_json(json::parse(in));
   }
-  if (std::ifstream q(dir / "quarantine.json"); q) job.quarantine = json::parse(q);
+  if (std::ifstream q(dir / "quarantine.json"); q) {
+    // Unparseable records are dropped, not the job: their files are simply tried again.
+    job.quarantine = json::parse(q, nullptr, /*allow_exceptions=*/false);
+    if (job.quarantine.is_discarded()) {
+      spdlog::warn("state: {} is damaged; its records are dropped and those files retried",
+                   (dir / "quarantine.json").string());
+      job.quarantine = json::array();
+    }
+  }
   const std::string& id = job.spec.id;
   // Frames: records only (the accumulators load when a frame next runs).
   const fs::path frames = dir / "frames";

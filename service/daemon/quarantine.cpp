@@ -1,5 +1,7 @@
 #include "daemon/quarantine.hpp"
 
+#include <spdlog/spdlog.h>
+
 #include <new>
 #include <system_error>
 
@@ -80,10 +82,21 @@ json Quarantine::to_json() const {
 
 Quarantine Quarantine::from_json(const json& j) {
   Quarantine q;
+  if (!j.is_array()) {
+    spdlog::warn("state: quarantine records are not a list; dropped (their files are retried)");
+    return q;
+  }
+  // A record only remembers that a file failed: a damaged one is dropped, so its file is tried
+  // again (and quarantined again while it is still bad); it never costs the job.
   for (const auto& e : j) {
-    QuarantineRecord r{e.at("path"), e.at("kind"), e.at("message"),
-                       e.at("time"), e.at("size"), e.at("mtime_ns")};
-    q.records_[{e.at("frame").get<long>(), e.at("pass").get<std::string>()}] = std::move(r);
+    try {
+      QuarantineRecord r{e.at("path"), e.at("kind"), e.at("message"),
+                         e.at("time"), e.at("size"), e.at("mtime_ns")};
+      q.records_[{e.at("frame").get<long>(), e.at("pass").get<std::string>()}] = std::move(r);
+    } catch (const json::exception& ex) {
+      spdlog::warn("state: a damaged quarantine record dropped (its file is retried): {}",
+                   ex.what());
+    }
   }
   return q;
 }

@@ -245,3 +245,15 @@ TEST_CASE("JobStore: a record quoting invalid UTF-8 is still saved and read back
   CHECK(back.acc.state_digest() == acc.state_digest());
   CHECK(back.record.ingested.at(0).pass == "00");
 }
+
+TEST_CASE("JobStore: a damaged quarantine.json costs its records, not the job",
+          "[daemon][job_store]") {
+  test::TempDir t;
+  JobStore store(t.path() / "state");
+  store.create_job(spec_for(t, "j1"));
+  touch(store.job_dir("j1") / "quarantine.json", "[{\"frame\": 3, \"pass\": \"a\"");  // cut off
+  const auto loaded = store.load_job(store.job_dir("j1"), ignore_corrupt);
+  REQUIRE(loaded);
+  CHECK(loaded->spec.id == "j1");
+  CHECK(loaded->quarantine == nlohmann::json::array());
+}

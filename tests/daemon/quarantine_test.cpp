@@ -53,6 +53,18 @@ TEST_CASE("Quarantine: records of one frame and the JSON round-trip", "[daemon][
   CHECK(back.blocks(2, "b", 3, 4));
 }
 
+TEST_CASE("Quarantine: damaged records are dropped, the good ones kept", "[daemon][quarantine]") {
+  Quarantine q;
+  q.add(2, "b", {"/w/b.exr", "duplicate", "same as a", "t", 3, 4});
+  nlohmann::json j = q.to_json();
+  j.push_back({{"frame", "seven"}, {"pass", "c"}});  // a wrong type and missing fields
+  j.push_back(42);
+  const Quarantine back = Quarantine::from_json(j);
+  CHECK(back.blocks(2, "b", 3, 4));
+  CHECK(back.to_json().size() == 1);
+  CHECK(Quarantine::from_json(nlohmann::json::object()).to_json().empty());
+}
+
 TEST_CASE("Quarantine: failures are classified", "[daemon][quarantine]") {
   const Failure bad =
       classify([] { throw InputError(InputErrorKind::size_mismatch, "p.exr", "8x8 vs 4x4"); });

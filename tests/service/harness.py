@@ -45,11 +45,6 @@ class Daemon:
         self.token = token
         self.config = dict(config or {})
         self.config.setdefault("watch", dict(FAST_WATCH))
-        if os.environ.get("PRODEN_TSAN"):
-            # Under ThreadSanitizer the pipeline runs on its frame's worker thread alone: TBB's
-            # scheduler is not instrumented (its hand-overs would be reported as races) and
-            # TSan makes its spinning workers very slow. The daemon's own threads are all there.
-            self.config.setdefault("pipeline_threads", 1)
         self.extra = list(extra)
         self.proc = None
         self.url = None
