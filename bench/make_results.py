@@ -4,8 +4,9 @@
 Generated parts: accuracy.md + accuracy_summary.json (bench/accuracy.py), perf.json + perf.txt
 (proden_bench_pipeline), cycles_1080p.json (Blender, same run), micro.txt (Google Benchmark).
 Hand-written parts, included verbatim: accumulation.md, daemon.md, dashboard.md, hostile.md,
-soak.md, farm.md, few_passes.md, savings.md (measurements made by other tools; edit them there, not
-in RESULTS.md); nfor.md is written by bench/nfor_results.py, fuzz.md by `make fuzz` (fuzz/run.py).
+soak.md, farm.md, few_passes.md, savings.md, nlmeans_fast.md (measurements made by other tools;
+edit them there, not in RESULTS.md); nfor.md is written by bench/nfor_results.py, fuzz.md by
+`make fuzz` (fuzz/run.py).
 """
 import json
 import math
@@ -203,7 +204,8 @@ def main():
          "integration* sections were measured by other tools and are kept as hand-written parts, "
          "`bench/results/savings.md` (`bench/savings.py`), `bench/results/accumulation.md`, "
          "`bench/results/daemon.md`, `bench/results/dashboard.md`, `bench/results/hostile.md`, "
-         "`bench/results/soak.md` and `bench/results/farm.md`, which the generator "
+         "`bench/results/soak.md`, `bench/results/farm.md` and `bench/results/nlmeans_fast.md` "
+         "(the *NL-means fast path*), which the generator "
          "includes verbatim: edit those files; the *Fuzzing* section is "
          "`bench/results/fuzz.md`, written by `make fuzz`. "
          "So are `bench/results/few_passes.md` (written by `bench/few_passes.py`) and "
@@ -233,6 +235,9 @@ def main():
         L.append("\n".join(l for l in micro.splitlines() if l.startswith(("BM_", "---", "Bench",
                                                                           "Run on"))))
         L.append("```\n")
+    fast = read("nlmeans_fast.md")  # issue 12's NL-means kernel work, measured by hand
+    if fast:
+        L.append(fast)
     for part in ("nfor.md", "savings.md", "accumulation.md", "daemon.md", "dashboard.md",
                  "hostile.md", "soak.md", "farm.md", "fuzz.md"):
         t = read(part)

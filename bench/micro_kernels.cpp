@@ -1,17 +1,22 @@
 // Google Benchmark microbenchmarks of the pipeline's hot loops on small inputs (one tile):
 // the NL-means offset kernel through NlMeansDenoiser::denoise (with and without the Jacobian
-// diagonal, with and without features), the closed-form mixer, the t-test rescale and
-// FrameAccumulator::add. Items/s are pixels/s. Run: build-bench/bench/proden_micro_kernels.
+// diagonal, with and without features; per kernel build; and over a whole 1080p frame), the
+// closed-form mixer, the t-test rescale and FrameAccumulator::add, and the machine's FMA and
+// copy peaks. Items/s are pixels/s. Run: build-bench/bench/proden_micro_kernels.
 #include <benchmark/benchmark.h>
 
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <random>
 #include <string>
 #include <vector>
 
+#include "bench_common.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/denoise/nlmeans.hpp"
 #include "proden/mixer.hpp"
+#include "proden/progressive.hpp"
 #include "proden/region.hpp"
 #include "proden/tstat.hpp"
 
@@ -85,6 +90,136 @@ void BM_NlMeans(benchmark::State& state) {
                  (features ? ", features" : ", colour only"));
 }
 BENCHMARK(BM_NlMeans)->Args({0, 1})->Args({1, 1})->Args({0, 0})->Args({1, 0});
+
+// The NL-means kernel per build (0 baseline, 1 avx2, 2 avx512), with the Jacobian and features.
+void BM_NlMeansIsa(benchmark::State& state) {
+  const std::vector<std::string> isas = nlmeans_isas_available();
+  const auto which = static_cast<std::size_t>(state.range(0));
+  if (which >= isas.size()) {
+    state.SkipWithError("build not available on this CPU");
+    return;
+  }
+  const Frame& f = frame();
+  NlMeansParams p;
+  p.isa = isas[which];
+  const NlMeansDenoiser nl(p);
+  DenoiseInputs in;
+  in.width = kW;
+  in.height = kW;
+  in.colour = view_of(f.x);
+  in.variance = view_of(f.var);
+  in.albedo = view_of(f.albedo);
+  in.normal = view_of(f.normal);
+  in.depth = view_of(f.depth);
+  in.albedo_variance = view_of(f.zeros3);
+  in.normal_variance = view_of(f.zeros3);
+  in.depth_variance = view_of(f.zeros1);
+  Buffer y(kOut, 3), d(kOut, 3);
+  for (auto _ : state) {
+    nl.denoise(in, kOut, y, &d);
+    benchmark::DoNotOptimize(y.at(kOut.x0, kOut.y0, 0));
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(kOut.area()));
+  state.SetLabel(p.isa + ", with Jacobian, features");
+}
+BENCHMARK(BM_NlMeansIsa)->Arg(0)->Arg(1)->Arg(2);
+
+// One 1920x1080 frame (bench_common's synthetic passes, 8 x 4 spp, accumulated: real variances
+// and feature variances), every pixel denoised once in the pipeline's 256-pixel tiles, 1 thread:
+// CPU time per iteration = CPU seconds per 1080p frame, with and without the Jacobian.
+const FrameEstimate& frame_1080p() {
+  static const FrameEstimate est = [] {
+    FrameAccumulator acc;
+    for (int k = 0; k < 8; ++k) acc.add(bench::synthetic_pass(1920, 1080, k, 4), std::to_string(k));
+    return acc.estimate();
+  }();
+  return est;
+}
+
+void BM_NlMeansFrame(benchmark::State& state) {
+  const FrameEstimate& est = frame_1080p();
+  const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
+  const bool jac = state.range(0) != 0;
+  const NlMeansDenoiser nl{NlMeansParams{}};
+  constexpr int kT = 256;
+  for (auto _ : state) {
+    for (int y0 = 0; y0 < din.height; y0 += kT) {
+      for (int x0 = 0; x0 < din.width; x0 += kT) {
+        const Rect t{x0, y0, std::min(x0 + kT, din.width), std::min(y0 + kT, din.height)};
+        Buffer y(t, 3), d(t, 3);
+        nl.denoise(din, t, y, jac ? &d : nullptr);
+        benchmark::DoNotOptimize(y.at(t.x0, t.y0, 0));
+      }
+    }
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(din.width) * din.height);
+  state.SetLabel(std::string("1920x1080, tiles 256, ") + (jac ? "with Jacobian" : "no Jacobian"));
+}
+BENCHMARK(BM_NlMeansFrame)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
+
+// The machine's peaks in the same run, for the kernels' share of them: single-precision FMA
+// throughput (AVX-512 when the CPU has it, else AVX2; 2 flops per lane per FMA, 16 independent
+// chains) and copy bandwidth of a buffer well beyond the caches (bytes read + written).
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+typedef float V16 __attribute__((vector_size(64)));
+typedef float V8 __attribute__((vector_size(32)));
+template <class V>
+[[gnu::always_inline]] inline void fma_chains(V* acc, V a, V b, std::int64_t n) {
+  for (std::int64_t i = 0; i < n; ++i) {
+    for (int j = 0; j < 16; ++j) acc[j] = acc[j] * a + b;
+  }
+}
+__attribute__((target("avx512f"), optimize("fp-contract=fast"))) float fma_avx512(std::int64_t n) {
+  V16 acc[16];
+  for (int j = 0; j < 16; ++j) acc[j] = V16{} + static_cast<float>(j);
+  fma_chains(acc, V16{} + 0.999999f, V16{} + 1e-7f, n);
+  float s = 0;
+  for (int j = 0; j < 16; ++j) s += acc[j][0];
+  return s;
+}
+__attribute__((target("avx2,fma"), optimize("fp-contract=fast"))) float fma_avx2(std::int64_t n) {
+  V8 acc[16];
+  for (int j = 0; j < 16; ++j) acc[j] = V8{} + static_cast<float>(j);
+  fma_chains(acc, V8{} + 0.999999f, V8{} + 1e-7f, n);
+  float s = 0;
+  for (int j = 0; j < 16; ++j) s += acc[j][0];
+  return s;
+}
+
+void BM_PeakFma(benchmark::State& state) {
+  __builtin_cpu_init();
+  const bool avx512 = __builtin_cpu_supports("avx512f");
+  if (!avx512 && !(__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"))) {
+    state.SkipWithError("no AVX2+FMA");
+    return;
+  }
+  constexpr std::int64_t kIter = 1 << 16;
+  for (auto _ : state) {
+    std::int64_t n = kIter;
+    benchmark::DoNotOptimize(n);  // not loop-invariant: the call is not hoisted
+    benchmark::DoNotOptimize(avx512 ? fma_avx512(n) : fma_avx2(n));
+  }
+  const int lanes = avx512 ? 16 : 8;
+  state.counters["GFLOPs"] =
+      benchmark::Counter(static_cast<double>(state.iterations()) * kIter * 16 * lanes * 2 * 1e-9,
+                         benchmark::Counter::kIsRate);
+  state.SetLabel(avx512 ? "avx512 FMA" : "avx2 FMA");
+}
+BENCHMARK(BM_PeakFma);
+#endif
+
+void BM_MemCopy(benchmark::State& state) {
+  const std::size_t n = std::size_t{64} << 20;  // 256 MiB of floats each way
+  std::vector<float> a(n / 4, 1.0f), b(n / 4, 0.0f);
+  for (auto _ : state) {
+    std::memcpy(b.data(), a.data(), n);
+    benchmark::DoNotOptimize(b.data());
+    benchmark::ClobberMemory();
+  }
+  state.SetBytesProcessed(state.iterations() * static_cast<int64_t>(2 * n));
+  state.SetLabel("read + write");
+}
+BENCHMARK(BM_MemCopy)->Unit(benchmark::kMillisecond);
 
 void BM_ClosedFormMixer(benchmark::State& state) {
   const Frame& f = frame();

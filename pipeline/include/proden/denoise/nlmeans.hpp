@@ -6,6 +6,9 @@
 // replicated border copies' contribution to the weight derivative is ignored).
 #pragma once
 
+#include <string>
+#include <vector>
+
 #include "proden/denoise/denoiser.hpp"
 
 namespace proden {
@@ -20,7 +23,13 @@ struct NlMeansParams {
   float k_feature = 0.6f;     // feature damping
   float tau = 1e-3f;          // floor of a feature's variance in its distance
   float depth_scale = 0.02f;  // relative depth difference that counts as one feature "sigma"
+  // Kernel build: "" = the best for this CPU, or one of nlmeans_isas_available() (tests and
+  // benchmarks force each; they agree within float rounding, docs/pipeline.md).
+  std::string isa;
 };
+
+// The kernel builds this CPU can run: "baseline" (portable) first, then "avx2", "avx512".
+std::vector<std::string> nlmeans_isas_available();
 
 class NlMeansDenoiser final : public Denoiser {
  public:
@@ -30,9 +39,13 @@ class NlMeansDenoiser final : public Denoiser {
   bool has_derivative() const override { return true; }
   void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const override;
   const NlMeansParams& params() const { return params_; }
+  std::string isa() const;  // the kernel build in use
 
  private:
+  // One block of the output (denoise() splits `out` so that the kernel's working set fits L2).
+  void denoise_block(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const;
   NlMeansParams params_;
+  int build_ = 0;
 };
 
 }  // namespace proden
