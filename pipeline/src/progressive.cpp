@@ -59,20 +59,26 @@ struct Denoised {
   }
 };
 
-// Stage 1 over `region`: y and, for the analytic divergence, the Jacobian diagonal.
+// Covers the frame with stages 1-2's buffers (dy/dx only for the analytic divergence).
+void reset_full(Denoised& d, const Rect& image, bool analytic) {
+  d.y.reset(image, 3);
+  d.dydx.reset(analytic ? image : Rect{}, 3);
+  d.div.reset(image, 3);
+  d.sure.reset(image, 3);
+}
+
+// Stage 1 over `region` (the buffers cover it): y and, for the analytic divergence, the Jacobian
+// diagonal.
 void run_denoiser(const Denoiser& denoiser, const DenoiseInputs& din, const Rect& region,
                   bool analytic, Denoised& d) {
-  d.y.reset(region, 3);
-  d.dydx.reset(analytic ? region : Rect{}, 3);
   denoiser.denoise(din, region, d.y, analytic ? &d.dydx : nullptr);
 }
 
-// Stage 2 over `region`: the divergence (from the Jacobian diagonal, or Monte-Carlo probes that
-// re-run the denoiser) and SURE, both from `variance`, each pixel's own unbiased Var[x] (the
-// denoiser's weights may read another: docs/pipeline.md, "Few passes").
+// Stage 2 over `region` (the buffers cover it): the divergence (from the Jacobian diagonal, or
+// Monte-Carlo probes that re-run the denoiser) and SURE, both from `variance`, each pixel's own
+// unbiased Var[x] (the denoiser's weights may read another: docs/pipeline.md, "Few passes").
 void run_sure(const Denoiser& denoiser, const DenoiseInputs& din, const View& variance,
               const Rect& region, bool analytic, const MonteCarloProbes& probes, Denoised& d) {
-  d.div.reset(region, 3);
   if (analytic) {
     divergence_from_derivative(variance, d.dydx, region, d.div);
   } else {
@@ -89,7 +95,6 @@ void run_sure(const Denoiser& denoiser, const DenoiseInputs& din, const View& va
       }
     }
   }
-  d.sure.reset(region, 3);
   sure(din.colour, variance, d.y, d.div, region, d.sure);
 }
 
@@ -248,20 +253,18 @@ DenoiseInputs denoise_inputs(const FrameEstimate& frame, const Image& colour, co
   return din;
 }
 
-// What execute() reuses from run to run: frame-sized copies of the inputs, the whole-frame
-// denoiser's outputs, and each worker thread's tile buffers.
+// What execute() reuses from run to run: frame-sized copies of the inputs, the denoiser's outputs
+// over the frame, and each worker thread's tile buffers.
 struct Pipeline::Scratch {
   struct Tile {
-    Denoised den;
     Buffer alpha, alpha_final, alpha_coarse, z;
     std::size_t floats() const {
-      return den.floats() + alpha.capacity() + alpha_final.capacity() + alpha_coarse.capacity() +
-             z.capacity();
+      return alpha.capacity() + alpha_final.capacity() + alpha_coarse.capacity() + z.capacity();
     }
   };
   Image x, var, box_tmp;  // sanitised x and Var[x], the box filter's pass
   Image var_weights;      // Var[x] as the denoiser's weights read it
-  Denoised full;          // a whole-frame denoiser's run
+  Denoised full;          // stages 1-2 over the frame
   tbb::enumerable_thread_specific<Tile> tiles;
 
   std::size_t bytes() const {
@@ -404,13 +407,10 @@ void Pipeline::commit() {
   mixer_weights_ = std::move(weights_source);
   analytic_ = analytic;
   reads_ = reads;
-  // The halo: what each tiled stage reads around the region the next one needs. A whole-frame
-  // denoiser has already run over the full image, so it adds nothing.
+  // The halo: what each mixer + t-test tile reads around itself of the full-frame y and SURE.
+  // The denoiser adds nothing: it runs over the whole frame (or in halo-free tiles) first.
   halo_ = 0;
-  if (denoiser_) {
-    halo_ = (denoiser_->whole_frame() ? 0 : denoiser_->radius()) + mixer_->radius() +
-            (o.t_test ? o.ttest.radius : 0);
-  }
+  if (denoiser_) halo_ = mixer_->radius() + (o.t_test ? o.ttest.radius : 0);
   committed_ = true;
 }
 
@@ -500,53 +500,61 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
   res.inputs.depth = reads_.features && din.depth.valid();
 
   const Rect image{0, 0, W, H};
-  // A whole-frame denoiser runs once over the full image; its y, divergence and SURE are then
-  // read by every tile (its timings are wall time: it may parallelise internally).
-  const bool whole = denoiser.whole_frame();
-  if (whole) {
+  const int T = o.tile;
+  const int tiles_x = (W + T - 1) / T, tiles_y = (H + T - 1) / T;
+  const auto tile_rect = [&](int t) {
+    const int x0 = (t % tiles_x) * T, y0 = (t / tiles_x) * T;
+    return Rect{x0, y0, std::min(x0 + T, W), std::min(y0 + T, H)};
+  };
+  struct Times {
+    double denoise = 0, sure = 0, mixer = 0, ttest = 0, compose = 0;
+  };
+  tbb::combinable<Times> times;
+
+  // Stages 1-2, y, the divergence and SURE, over the whole frame into s.full, which the mixer and
+  // t-test tiles below read, halos included: no pixel is denoised twice (issue 12's fast path; a
+  // tile used to re-denoise a halo of the mixer's and the t-test's radii, 1.18x the pixels at
+  // 256). A whole-frame denoiser runs once (wall time: it may parallelise internally); a local
+  // one in halo-free tiles, each writing only its own pixels (CPU time summed over tiles).
+  reset_full(s.full, image, analytic_);
+  if (denoiser.whole_frame()) {
     const auto w0 = Clock::now();
     run_denoiser(denoiser, din, image, analytic_, s.full);
     const auto w1 = Clock::now();
     run_sure(denoiser, din, view_of(var), image, analytic_, o.probes, s.full);
     res.timings.denoise += seconds(w0, w1);
     res.timings.sure += seconds(w1, Clock::now());
+  } else {
+    tbb::parallel_for(0, tiles_x * tiles_y, [&](int t) {
+      tbb::this_task_arena::isolate([&] {
+        Times& tm = times.local();
+        const Rect tile = tile_rect(t);
+        const double t0 = thread_cpu();
+        run_denoiser(denoiser, din, tile, analytic_, s.full);
+        const double t1 = thread_cpu();
+        run_sure(denoiser, din, view_of(var), tile, analytic_, o.probes, s.full);
+        tm.denoise += t1 - t0;
+        tm.sure += thread_cpu() - t1;
+      });
+    });
   }
 
-  const int T = o.tile;
-  const int tiles_x = (W + T - 1) / T, tiles_y = (H + T - 1) / T;
   const int t_pad = o.t_test ? o.ttest.radius : 0;
-  const int mix_pad = mixer.radius() + t_pad;
   const View pooled = view_of(res.mix_variance);
   // What the mixer and the t-test need to know of the variance's degrees of freedom.
   const VarianceOrigin origin{frame.passes.same_size(frame.mean) ? view_of(frame.passes) : View{},
                               frame.variance_source == VarianceSource::renderer,
                               o.variance_pool_radius, view_of(var)};
 
-  struct Times {
-    double denoise = 0, sure = 0, mixer = 0, ttest = 0, compose = 0;
-  };
-  tbb::combinable<Times> times;
-
-  // One tile's stages. They use this thread's scratch, so a thread must not start another tile
+  // One tile's stages 3-5. They use this thread's scratch, so a thread must not start another tile
   // while one is in flight: isolate() keeps any parallel work a stage waits on from lending the
   // thread to this loop's other tiles.
   const auto run_tile = [&](int t) {
     Times& tm = times.local();
     Scratch::Tile& b = s.tiles.local();
-    const Rect inner = Rect{(t % tiles_x) * T, (t / tiles_x) * T, 0, 0};
-    const Rect tile{inner.x0, inner.y0, std::min(inner.x0 + T, W), std::min(inner.y0 + T, H)};
-    const Rect r_den = tile.expanded(mix_pad).intersect(image);  // y, SURE needed here
-    const Rect r_mix = tile.expanded(t_pad).intersect(image);    // alpha needed here
-
-    const double t0 = thread_cpu();
-    double t1 = t0;
-    if (!whole) {
-      run_denoiser(denoiser, din, r_den, analytic_, b.den);
-      t1 = thread_cpu();
-      run_sure(denoiser, din, view_of(var), r_den, analytic_, o.probes, b.den);
-    }
-    const Denoised& d = whole ? s.full : b.den;
-    const View y = d.y.view(), div = d.div.view(), sure_v = d.sure.view();
+    const Rect tile = tile_rect(t);
+    const Rect r_mix = tile.expanded(t_pad).intersect(image);  // alpha needed here
+    const View y = s.full.y.view(), div = s.full.div.view(), sure_v = s.full.sure.view();
     const double t2 = thread_cpu();
 
     const MixInputs mi{W, H, din.colour, y, pooled, sure_v, div, origin};
@@ -606,8 +614,6 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
       }
     }
     const double t5 = thread_cpu();
-    tm.denoise += t1 - t0;
-    tm.sure += t2 - t1;
     tm.mixer += t3 - t2;
     tm.ttest += t4 - t3;
     tm.compose += t5 - t4;

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "proden/accumulator.hpp"
+#include "proden/denoise/nlmeans.hpp"
 #include "proden/network/weights.hpp"
 #include "proden/progressive.hpp"
 #include "proden/protocol/api.hpp"
@@ -94,6 +95,25 @@ class WholeFrame final : public Denoiser {
  private:
   std::unique_ptr<const Denoiser> inner_;
   bool derivative_;
+};
+
+// A registered (tiled) denoiser counting the pixels it was asked for: the pipeline must denoise
+// each pixel once, in halo-free tiles (plus the Monte-Carlo probes' runs).
+class CountingTiles final : public Denoiser {
+ public:
+  explicit CountingTiles(std::unique_ptr<const Denoiser> inner) : inner_(std::move(inner)) {}
+  std::string name() const override { return "counted-" + inner_->name(); }
+  int radius() const override { return inner_->radius(); }
+  bool has_derivative() const override { return inner_->has_derivative(); }
+  void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const override {
+    ++calls;
+    pixels += static_cast<long>(out.area());
+    inner_->denoise(in, out, y, dydx);
+  }
+  mutable std::atomic<long> calls{0}, pixels{0};
+
+ private:
+  std::unique_ptr<const Denoiser> inner_;
 };
 
 }  // namespace
@@ -251,8 +271,10 @@ TEST_CASE("a whole-frame denoiser runs once over the full image and tiles equal 
       auto whole = std::make_shared<WholeFrame>(std::make_unique<GaussianDenoiser>(2.0f));
       p.set_denoiser(whole);
       p.commit();
-      // The denoiser's radius is no part of the halo: it has already seen the whole image.
-      CHECK(p.halo() == tiled_ref.halo() - whole->radius());
+      // The denoiser's radius is no part of the halo, whole-frame or tiled: y and SURE are
+      // computed over the frame before the mixer's tiles read them.
+      CHECK(p.halo() == tiled_ref.halo());
+      CHECK(p.halo() == p.mixer()->radius() + o.ttest.radius);
       const PipelineResult r = p.execute(f);
       INFO("tile " << tile << ", divergence " << r.divergence);
       CHECK(whole->calls.load() == (method == DivergenceMethod::analytic ? 1 : 1 + o.probes.count));
@@ -422,4 +444,24 @@ TEST_CASE("the pipeline asks the accumulator only for what its denoiser reads",
     p.commit();
     CHECK(p.execute(f.estimate(p.estimate_options())).inputs.to_string() == want);
   }
+}
+
+TEST_CASE("a tiled denoiser sees each pixel once: no tile re-denoises a halo",
+          "[pipeline][object][tiles]") {
+  const FrameEstimate f = small_frame();  // 45x31
+  PipelineOptions o = small_options();
+  o.tile = 8;  // 6 x 4 tiles, much smaller than the mixer's and the t-test's halo
+  Pipeline ref(o);
+  ref.commit();
+  const PipelineResult want = ref.execute(f);
+  Pipeline p(o);
+  auto counted = std::make_shared<CountingTiles>(std::make_unique<NlMeansDenoiser>(o.nlmeans));
+  p.set_denoiser(counted);
+  p.commit();
+  const PipelineResult got = p.execute(f);
+  CHECK(counted->calls.load() == 6 * 4);
+  CHECK(counted->pixels.load() == 45 * 31);
+  CHECK(same(got.result, want.result));
+  CHECK(same(got.denoised, want.denoised));
+  CHECK(same(got.sure, want.sure));
 }

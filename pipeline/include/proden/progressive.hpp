@@ -2,8 +2,9 @@
 // validated object with Open Image Denoise's filter lifecycle: set options, commit() checks them
 // and builds the stages once (denoiser, mixer, network), execute() runs per frame on scratch it
 // keeps. Stages: denoise x into y, estimate SURE, mix with a per-pixel alpha, shrink alpha with the
-// t-test, compose z = x + alpha' (y - x). Tiles run in parallel with a halo derived from the built
-// stages, so a tiled run equals the whole-image run (docs/pipeline.md).
+// t-test, compose z = x + alpha' (y - x). The denoiser and SURE run over the frame in halo-free
+// tiles, then the mixer and t-test in tiles with a halo derived from the built stages, so a tiled
+// run equals the whole-image run (docs/pipeline.md).
 #pragma once
 
 #include <cstdint>
