@@ -61,12 +61,8 @@ const Frame& frame() {
 
 const Rect kOut{kMargin, kMargin, kMargin + kTile, kMargin + kTile};
 
-void BM_NlMeans(benchmark::State& state) {
-  const Frame& f = frame();
-  const bool jac = state.range(0) != 0, features = state.range(1) != 0;
-  NlMeansParams p;
-  p.use_features = features;
-  const NlMeansDenoiser nl(p);
+// The benchmark frame as NL-means reads it, with or without its features (noise-free).
+DenoiseInputs nlmeans_inputs(const Frame& f, bool features) {
   DenoiseInputs in;
   in.width = kW;
   in.height = kW;
@@ -80,6 +76,16 @@ void BM_NlMeans(benchmark::State& state) {
     in.normal_variance = view_of(f.zeros3);
     in.depth_variance = view_of(f.zeros1);
   }
+  return in;
+}
+
+void BM_NlMeans(benchmark::State& state) {
+  const Frame& f = frame();
+  const bool jac = state.range(0) != 0, features = state.range(1) != 0;
+  NlMeansParams p;
+  p.use_features = features;
+  const NlMeansDenoiser nl(p);
+  const DenoiseInputs in = nlmeans_inputs(f, features);
   Buffer y(kOut, 3), d(kOut, 3);
   for (auto _ : state) {
     nl.denoise(in, kOut, y, jac ? &d : nullptr);
@@ -103,17 +109,7 @@ void BM_NlMeansIsa(benchmark::State& state) {
   NlMeansParams p;
   p.isa = isas[which];
   const NlMeansDenoiser nl(p);
-  DenoiseInputs in;
-  in.width = kW;
-  in.height = kW;
-  in.colour = view_of(f.x);
-  in.variance = view_of(f.var);
-  in.albedo = view_of(f.albedo);
-  in.normal = view_of(f.normal);
-  in.depth = view_of(f.depth);
-  in.albedo_variance = view_of(f.zeros3);
-  in.normal_variance = view_of(f.zeros3);
-  in.depth_variance = view_of(f.zeros1);
+  const DenoiseInputs in = nlmeans_inputs(f, true);
   Buffer y(kOut, 3), d(kOut, 3);
   for (auto _ : state) {
     nl.denoise(in, kOut, y, &d);
