@@ -72,7 +72,8 @@ tsan: deps
 	cmake --build $(TSAN_DIR) -j $(JOBS) --target proden proden_daemon_tests
 
 test-tsan: tsan
-# A TSan build runs TBB loops on their caller's thread (service/thread_limit.hpp), the CLI's too.
+# A TSan build runs library thread pools (TBB, OIIO, OpenEXR) on their caller's thread, the CLI's
+# too (service/thread_limit.hpp).
 	cd $(TSAN_DIR) && ctest --output-on-failure -L 'daemon|service' -j $(JOBS)
 
 run: build

@@ -15,8 +15,8 @@ namespace proden {
 // for it. Debian's libtbb, libOpenImageIO and libIlmThread are not instrumented, so TSan cannot
 // see the hand-over between a caller and their pool workers and would report each as a race.
 // With no pool workers, TSan checks everything proden's own threads (daemon workers, HTTP,
-// watcher, SSE) share, with no suppressions. Races between tiles of one frame are the
-// tiled-equals-whole tests' business (docs/pipeline.md).
+// watcher, SSE) share, and no pool needs a suppression (tests/tsan.supp). Races between tiles of
+// one frame are the tiled-equals-whole tests' business (docs/pipeline.md).
 #ifdef PRODEN_TSAN_BUILD
 inline constexpr bool kSerialLibraries = true;
 #else
