@@ -513,9 +513,10 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
 
   // Stages 1-2, y, the divergence and SURE, over the whole frame into s.full, which the mixer and
   // t-test tiles below read, halos included: no pixel is denoised twice (issue 12's fast path; a
-  // tile used to re-denoise a halo of the mixer's and the t-test's radii, 1.18x the pixels at
-  // 256). A whole-frame denoiser runs once (wall time: it may parallelise internally); a local
-  // one in halo-free tiles, each writing only its own pixels (CPU time summed over tiles).
+  // tile used to re-denoise a halo of the mixer's and the t-test's radii, 30 pixels with the
+  // default mixer: 1.52x the pixels at 256). A whole-frame denoiser runs once (wall time: it may
+  // parallelise internally); a local one in halo-free tiles, each writing only its own pixels (CPU
+  // time summed over tiles).
   reset_full(s.full, image, analytic_);
   if (denoiser.whole_frame()) {
     const auto w0 = Clock::now();
