@@ -24,8 +24,6 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 constexpr int kLanes = 8;  // output pixels per kernel call: one AVX-512 register of doubles
 constexpr int kMaxRadius = kTTestMaxRadius;  // window and pooling radii the lane arrays hold
 constexpr int kMaxSpan = 2 * (2 * kMaxRadius) + 1;
-// The one-pass spatial fallback (accumulator.cpp): the spread of the 3x3 neighbourhood's means.
-constexpr double kSpatialDof = 8.0;
 
 double upper_normal_tail(double u) {
   return 0.5 * std::erfc(u / std::sqrt(2.0));
@@ -320,10 +318,6 @@ Image pool_variance(const Image& img, int r) {
   Image tmp, out;
   pool_variance(img, r, tmp, out);
   return out;
-}
-
-double pixel_dof(double passes) {
-  return passes >= 2.0 ? passes - 1.0 : kSpatialDof;
 }
 
 double student_t_quantile(double dof, double upper_tail) {

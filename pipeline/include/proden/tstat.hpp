@@ -46,7 +46,10 @@ void pool_variance(const Image& variance, int radius, Image& tmp, Image& out);
 
 // Degrees of freedom of one pixel's own variance estimate from `passes` passes: K - 1 between
 // passes; the one-pass spatial fallback is the 3x3 spread of the mean (8).
-double pixel_dof(double passes);
+inline double pixel_dof(double passes) {
+  constexpr double kSpatialDof = 8.0;  // the one-pass spatial fallback (accumulator.cpp)
+  return passes >= 2.0 ? passes - 1.0 : kSpatialDof;
+}
 
 // Exact Student-t quantile (Boost.Math): the t with P(T_dof > t) = upper_tail; dof = infinity
 // gives the normal quantile.
