@@ -90,8 +90,9 @@ struct SizeResult {
 void print_json_stage(std::FILE* f, const char* name, const StageTimings& t, bool last) {
   std::fprintf(f,
                "    \"%s\": {\"denoise\": %.6f, \"sure\": %.6f, \"mixer\": %.6f, \"ttest\": %.6f, "
-               "\"compose\": %.6f, \"wall\": %.6f}%s\n",
-               name, t.denoise, t.sure, t.mixer, t.ttest, t.compose, t.wall, last ? "" : ",");
+               "\"compose\": %.6f, \"cross_validation\": %.6f, \"wall\": %.6f}%s\n",
+               name, t.denoise, t.sure, t.mixer, t.ttest, t.compose, t.cross_validation, t.wall,
+               last ? "" : ",");
 }
 
 }  // namespace
@@ -259,6 +260,8 @@ int main(int argc, char** argv) {
     std::printf("%-22s %9.3f %9.3f\n", "mixer", s.an[0].mixer, s.an[1].mixer);
     std::printf("%-22s %9.3f %9.3f\n", "t-test", s.an[0].ttest, s.an[1].ttest);
     std::printf("%-22s %9.3f %9.3f\n", "compose", s.an[0].compose, s.an[1].compose);
+    std::printf("%-22s %9.3f %9.3f   (the error estimate's 2 half runs)\n", "cross-validation",
+                s.an[0].cross_validation, s.an[1].cross_validation);
     std::printf("%-22s %9.3f %9.3f\n", "pipeline wall", s.an[0].wall, s.an[1].wall);
     std::printf("%-22s %9.2f %9.2f\n", "pipeline MP/s", mp / s.an[0].wall, mp / s.an[1].wall);
     std::printf("%-22s %9.2f %9.2f   (process CPU s / wall: < threads = machine busy)\n",

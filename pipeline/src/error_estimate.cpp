@@ -97,6 +97,41 @@ void check(const Image* img, const Image& like, const char* what) {
 
 }  // namespace
 
+namespace {
+double finite_or_zero(double v) {
+  return std::isfinite(v) ? v : 0.0;
+}
+}  // namespace
+
+ElementError render_error(double v) {
+  v = std::max(0.0, finite_or_zero(v));
+  return {v, 0.0, v};
+}
+
+ElementError sure_error(double v, double a, double d, double sure) {
+  // SURE of z = x + a (y - x) with alpha held fixed: e = (1-a) v + a SURE - a (1-a) d^2 (it keeps
+  // the x-y covariance that (1-a)^2 v + a^2 SURE drops) = scaled + measured with
+  // scaled = (1-a) v + a (SURE - d^2) proportional to the variance scale (SURE - d^2 = -v + 2 v
+  // div), measured = a^2 d^2.
+  v = std::max(0.0, finite_or_zero(v));
+  a = finite_or_zero(a);
+  d = finite_or_zero(d);
+  return {(1.0 - a) * v + a * (finite_or_zero(sure) - d * d), a * a * d * d,
+          (1.0 - a) * (1.0 - a) * v};
+}
+
+ElementError cv_error(double v, double a, double d, double cv_square, double cv_variance) {
+  // The same e with m = (cv_square - cv_variance) kHalfToFullMse: the variance part scales with
+  // the variance estimate, the squares and d^2 are measured.
+  v = std::max(0.0, finite_or_zero(v));
+  a = finite_or_zero(a);
+  d = finite_or_zero(d);
+  const double vh = std::max(0.0, finite_or_zero(cv_variance));
+  return {(1.0 - a) * v - a * kHalfToFullMse * vh,
+          a * kHalfToFullMse * finite_or_zero(cv_square) - a * (1.0 - a) * d * d,
+          (1.0 - a) * (1.0 - a) * v};
+}
+
 std::string_view to_string(NoiseScope s) {
   return s == NoiseScope::pixel ? "pixel" : "frame";
 }
@@ -114,6 +149,11 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
     check(in.alpha, x, "alpha");
     check(in.sure, x, "SURE");
   }
+  const bool cv = denoised && in.cv_square != nullptr;
+  if (cv) {
+    check(in.cv_square, x, "the cross-validation square");
+    check(in.cv_variance, x, "the cross-validation variance");
+  }
   if (!(ctx.confidence > 0.0 && ctx.confidence < 1.0)) {
     throw std::invalid_argument("estimate_error: confidence must be in (0, 1)");
   }
@@ -125,30 +165,29 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   DiffVar dm, dr;  // neighbour differences of the MSE and relMSE terms
   for (int c = 0; c < 3; ++c) {
     const auto xv = x.plane(c), vv = in.variance->plane(c), zv = in.result->plane(c);
-    std::span<const float> yv, av, sv;
+    std::span<const float> yv, av, sv, qv, bv;
     if (denoised) {
       yv = in.denoised->plane(c);
       av = in.alpha->plane(c);
       sv = in.sure->plane(c);
     }
+    if (cv) {
+      qv = in.cv_square->plane(c);
+      bv = in.cv_variance->plane(c);
+    }
     // Per element: the error terms (below), then the relMSE weights from the stand-in.
     std::vector<double> EV(n), ED(n), F(n), Z(n), Epos(n);
     for (std::size_t i = 0; i < n; ++i) {
-      // Non-finite values count as 0, as the pipeline's stages see them.
-      const double v = std::isfinite(vv[i]) ? std::max(0.0, static_cast<double>(vv[i])) : 0.0;
-      double ev = v, ed = 0.0, f = v;
-      if (denoised) {
-        const double a = av[i], d = static_cast<double>(yv[i]) - xv[i];
-        // SURE of z = x + a (y - x) with alpha held fixed: e = (1-a) v + a SURE - a (1-a) d^2
-        // (it keeps the x-y covariance that (1-a)^2 v + a^2 SURE drops) = e_v + e_d with
-        // e_v = (1-a) v + a (SURE - d^2) proportional to the variance scale, e_d = a^2 d^2.
-        // The frame mean is taken without per-pixel clamping (that would bias it up, 4-5x on
-        // interior) and floored at mean (1-a)^2 v: MSE(z) >= that when div >= 0, and SURE
-        // biased low (noisy features correlated with x's noise) can take the mean below it.
-        ev = (1.0 - a) * v + a * (sv[i] - d * d);
-        ed = a * a * d * d;
-        f = (1.0 - a) * (1.0 - a) * v;
-      }
+      // The terms of docs/error_estimate.md, "The model" (non-finite values count as 0). The
+      // frame mean is taken without per-element clamping (that would bias it up, 4-5x on
+      // interior) and floored at mean (1-a)^2 v: MSE(z) >= that when div >= 0, and SURE biased
+      // low (noisy features correlated with x's noise) can take the mean below it.
+      const double a = denoised ? av[i] : 0.0;
+      const double d = denoised ? static_cast<double>(yv[i]) - xv[i] : 0.0;
+      const ElementError el = !denoised ? render_error(vv[i])
+                              : cv      ? cv_error(vv[i], a, d, qv[i], bv[i])
+                                        : sure_error(vv[i], a, d, sv[i]);
+      const double ev = el.scaled, ed = el.measured, f = el.floor;
       EV[i] = ev;
       ED[i] = ed;
       F[i] = f;
@@ -195,7 +234,7 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   e.spp = ctx.spp;
   e.confidence = ctx.confidence;
   e.noise_scope = ctx.noise_scope;
-  e.source = denoised ? "variance+sure" : "variance";
+  e.source = cv ? "variance+cross-validation" : denoised ? "variance+sure" : "variance";
   e.mse = m.at(1.0);
   e.relmse = r.at(1.0);
   e.render_relmse = q;

@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cmath>
 #include <ctime>
+#include <functional>
 #include <stdexcept>
 #include <vector>
 
@@ -147,9 +148,9 @@ const DenoiserEntry kDenoisers[] = {
      [](const PipelineOptions&) { return EstimateOptions{.halves = false, .features = false}; }},
 };
 
-constexpr std::array<std::string_view, 7> kLayerNames = {
-    layer::result, layer::render, layer::variance,     layer::denoised,
-    layer::alpha,  layer::sure,   layer::mix_variance,
+constexpr std::array<std::string_view, 9> kLayerNames = {
+    layer::result, layer::render,       layer::variance,  layer::denoised,    layer::alpha,
+    layer::sure,   layer::mix_variance, layer::cv_square, layer::cv_variance,
 };
 
 }  // namespace
@@ -215,10 +216,11 @@ std::span<const std::string_view> layer_names() {
 
 std::vector<std::pair<std::string_view, const Image*>> PipelineResult::layers() const {
   using Named = std::pair<std::string_view, const Image*>;
-  const std::array<Named, 6> all = {
-      Named{layer::render, &render},     Named{layer::variance, &variance},
-      Named{layer::denoised, &denoised}, Named{layer::alpha, &alpha},
-      Named{layer::sure, &sure},         Named{layer::mix_variance, &mix_variance}};
+  const std::array<Named, 8> all = {
+      Named{layer::render, &render},       Named{layer::variance, &variance},
+      Named{layer::denoised, &denoised},   Named{layer::alpha, &alpha},
+      Named{layer::sure, &sure},           Named{layer::mix_variance, &mix_variance},
+      Named{layer::cv_square, &cv_square}, Named{layer::cv_variance, &cv_variance}};
   std::vector<Named> out;
   for (const auto& named : all) {
     if (!named.second->empty()) out.push_back(named);
@@ -265,11 +267,20 @@ struct Pipeline::Scratch {
   Image x, var, box_tmp;  // sanitised x and Var[x], the box filter's pass
   Image var_weights;      // Var[x] as the denoiser's weights read it
   Denoised full;          // stages 1-2 over the frame
+  // The error estimate's cross-validation, per half: x_h and Var[x_h] sanitised, Var[x_h] pooled
+  // and as the weights read it, and y_h.
+  struct Half {
+    Image x, var, pooled, var_w;
+    Buffer y;
+    std::size_t floats() const { return x.data().size() + var.data().size() + y.capacity(); }
+  };
+  std::array<Half, 2> cv;
   tbb::enumerable_thread_specific<Tile> tiles;
 
   std::size_t bytes() const {
     std::size_t floats = x.data().size() + var.data().size() + box_tmp.data().size() +
-                         var_weights.data().size() + full.floats();
+                         var_weights.data().size() + full.floats() + cv[0].floats() +
+                         cv[1].floats();
     for (const Tile& t : tiles) floats += t.floats();
     return floats * sizeof(float);
   }
@@ -293,6 +304,7 @@ Pipeline& Pipeline::operator=(Pipeline&& other) noexcept {
   mixer_weights_ = std::move(other.mixer_weights_);
   analytic_ = other.analytic_;
   reads_ = other.reads_;
+  cross_validate_ = other.cross_validate_;
   halo_ = other.halo_;
   scratch_ = std::move(other.scratch_);
   other.committed_ = false;  // its stages are gone: it must be set up and committed again
@@ -406,6 +418,9 @@ void Pipeline::commit() {
   mixer_ = std::move(mixer);
   mixer_weights_ = std::move(weights_source);
   analytic_ = analytic;
+  // The error estimate's cross-validation needs the half buffers (docs/error_estimate.md).
+  cross_validate_ = denoiser_ != nullptr && !reads.halves;
+  if (cross_validate_) reads.halves = true;
   reads_ = reads;
   // The halo: what each mixer + t-test tile reads around itself of the full-frame y and SURE.
   // The denoiser adds nothing: it runs over the whole frame (or in halo-free tiles) first.
@@ -629,9 +644,80 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
     res.timings.ttest += tm.ttest;
     res.timings.compose += tm.compose;
   });
-  // Error of z = x + a (y - x) from the pipeline's own estimates (SURE of z), with its interval.
-  res.estimated_error =
-      estimate_error({&x, &var, &res.result, &res.denoised, &res.alpha, &res.sure}, error);
+  // Error of z = x + a (y - x) from the pipeline's own estimates, with its interval: the
+  // denoiser's error cross-validated between the halves where they exist, else SURE.
+  ErrorInputs ein{&x, &var, &res.result, &res.denoised, &res.alpha, &res.sure};
+  if (cross_validate_ && !frame.half_mean[0].empty() && !frame.half_mean[1].empty()) {
+    // The denoiser on each half alone, as it would run on a frame of that half's passes: x_h
+    // with its own Var[x_h] (read by the weights as the full run reads its own: max(own,
+    // pooled)) and its own feature means; the feature variances stay the full frame's (measured
+    // choice, docs/error_estimate.md). The other half is independent of all of it. No Jacobian.
+    for (int h = 0; h < 2; ++h) {
+      Scratch::Half& hs = s.cv[static_cast<std::size_t>(h)];
+      sanitize_into(frame.half_mean[h], -kMaxValue, kMaxValue, hs.x);
+      sanitize_into(frame.half_variance[h], 0.0f, kMaxVariance, hs.var);
+      const Image* weights = &hs.var;
+      if (estimated_variance) {
+        pool_variance(hs.var, o.variance_pool_radius, s.box_tmp, hs.pooled);
+        hs.var_w = hs.var;
+        auto w = hs.var_w.data();
+        const auto pooled_h = hs.pooled.data();
+        for (std::size_t i = 0; i < w.size(); ++i) w[i] = std::max(w[i], pooled_h[i]);
+        weights = &hs.var_w;
+      }
+      DenoiseInputs dh = denoise_inputs(frame, hs.x, *weights, reads_.features);
+      for (std::size_t k = 0; k < 2; ++k) {
+        dh.half_colour[k] = dh.half_variance[k] = View{};
+        dh.half_albedo[k] = dh.half_normal[k] = dh.half_depth[k] = View{};
+      }
+      if (reads_.features) {  // the half's own feature means
+        if (!frame.half_albedo[h].empty()) dh.albedo = view_of(frame.half_albedo[h]);
+        if (!frame.half_normal[h].empty()) dh.normal = view_of(frame.half_normal[h]);
+        if (!frame.half_depth[h].empty()) dh.depth = view_of(frame.half_depth[h]);
+      }
+      hs.y.reset(image, 3);
+      if (denoiser.whole_frame()) {
+        const double t0 = thread_cpu();
+        denoiser.denoise(dh, image, hs.y, nullptr);
+        res.timings.cross_validation += thread_cpu() - t0;
+      } else {
+        tbb::combinable<double> cpu;
+        tbb::parallel_for(0, tiles_x * tiles_y, [&](int t) {
+          tbb::this_task_arena::isolate([&] {
+            const double t0 = thread_cpu();
+            denoiser.denoise(dh, tile_rect(t), hs.y, nullptr);
+            cpu.local() += thread_cpu() - t0;
+          });
+        });
+        res.timings.cross_validation += cpu.combine(std::plus<double>());
+      }
+    }
+    // Per element (docs/error_estimate.md, "Cross-validation"): each half's denoised image
+    // against the other half's render, E[(y_A - x_B)^2] = MSE(y_A) + Var[x_B], averaged over the
+    // two directions: cv = ((y_A - x_B)^2 + (y_B - x_A)^2) / 2, cv_var = (v_A + v_B) / 2.
+    res.cv_square = Image(W, H, 3);
+    res.cv_variance = Image(W, H, 3);
+    const Scratch::Half &A = s.cv[0], &B = s.cv[1];
+    for (int c = 0; c < 3; ++c) {
+      const auto xa = A.x.plane(c), xb = B.x.plane(c), va = A.var.plane(c), vb = B.var.plane(c);
+      auto q = res.cv_square.plane(c), qv = res.cv_variance.plane(c);
+      for (int py = 0; py < H; ++py) {
+        const float* ya = A.y.row(py, c);
+        const float* yb = B.y.row(py, c);
+        for (int px = 0; px < W; ++px) {
+          const std::size_t i = static_cast<std::size_t>(py) * W + px;
+          const double ab = static_cast<double>(ya[px]) - xb[i];
+          const double ba = static_cast<double>(yb[px]) - xa[i];
+          q[i] = static_cast<float>(
+              std::min(0.5 * (ab * ab + ba * ba), static_cast<double>(kMaxVariance)));
+          qv[i] = 0.5f * (va[i] + vb[i]);
+        }
+      }
+    }
+    ein.cv_square = &res.cv_square;
+    ein.cv_variance = &res.cv_variance;
+  }
+  res.estimated_error = estimate_error(ein, error);
   res.timings.wall = seconds(t_start, Clock::now());
   return res;
 }

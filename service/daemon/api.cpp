@@ -70,8 +70,8 @@ json colour_maps_json() {
     maps[std::string(name(cm))] = colour_stops(cm, 32);
   }
   json layers = json::object();
-  for (const char* l :
-       {"result", "render", "denoised", "alpha", "variance", "mixvariance", "sure", "error"}) {
+  for (const char* l : {"result", "render", "denoised", "alpha", "variance", "mixvariance", "sure",
+                        "cvsquare", "cvvariance", "error"}) {
     const LayerView v = layer_view(l);
     if (v.colour) {
       layers[l] = {{"kind", "colour"}};

@@ -1,5 +1,7 @@
 #include "daemon/colour_map.hpp"
 
+#include "proden/error_estimate.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -26,7 +28,8 @@ float srgb(float linear) {
 
 LayerView layer_view(std::string_view layer) {
   if (layer == "alpha") return {false, ColourMap::viridis, Scale::linear};
-  if (layer == "variance" || layer == "mixvariance" || layer == "sure" || layer == "error") {
+  if (layer == "variance" || layer == "mixvariance" || layer == "sure" || layer == "cvsquare" ||
+      layer == "cvvariance" || layer == "error") {
     return {false, ColourMap::magma, Scale::log};
   }
   return {true, ColourMap::viridis, Scale::linear};
@@ -162,16 +165,21 @@ Rgb8 apply_colour_map(std::span<const float> values, int width, int height, Colo
 }
 
 Image result_error(const Image& render, const Image& variance, const Image& denoised,
-                   const Image& alpha, const Image& sure) {
+                   const Image& alpha, const Image& sure, const Image* cv_square,
+                   const Image* cv_variance) {
   Image out(render.width(), render.height(), render.channels());
   const auto x = render.data(), v = variance.data(), y = denoised.data(), a = alpha.data(),
              s = sure.data();
+  const bool cv = cv_square && cv_variance && cv_square->data().size() == x.size() &&
+                  cv_variance->data().size() == x.size();
   auto e = out.data();
   const std::size_t n = std::min({x.size(), v.size(), y.size(), a.size(), s.size()});
   for (std::size_t i = 0; i < n; ++i) {
-    const double w = a[i], d = static_cast<double>(y[i]) - x[i];
-    const double est = (1.0 - w) * v[i] + w * s[i] - w * (1.0 - w) * d * d;
-    e[i] = static_cast<float>(std::max(est, (1.0 - w) * (1.0 - w) * v[i]));
+    const double d = static_cast<double>(y[i]) - x[i];
+    const ElementError el =
+        cv ? cv_error(v[i], a[i], d, cv_square->data()[i], cv_variance->data()[i])
+           : sure_error(v[i], a[i], d, s[i]);
+    e[i] = static_cast<float>(std::max(el.value(), el.floor));
   }
   return out;
 }

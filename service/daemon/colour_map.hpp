@@ -64,11 +64,12 @@ Rgb8 apply_colour_map(std::span<const float> values, int width, int height, Colo
                       const ScalarRange& range);
 
 // The result's estimated squared error per pixel and channel, from the published layers: the
-// summand of proden::estimated_result_mse (progressive.cpp),
-// (1-a) Var[x] + a SURE(y) - a (1-a) (y-x)^2, floored per pixel at the render's share
-// (1-a)^2 Var[x] so the map is positive where the estimate is (its mean can exceed the frame's
-// estimated_mse, which floors the mean instead).
+// summand of the frame's estimated error (proden::sure_error, or proden::cv_error when the
+// cross-validation layers are given: docs/error_estimate.md), floored per pixel at the render's
+// share (1-a)^2 Var[x] so the map is positive where the estimate is (its mean can exceed the
+// frame's estimated mse, which floors the mean instead).
 Image result_error(const Image& render, const Image& variance, const Image& denoised,
-                   const Image& alpha, const Image& sure);
+                   const Image& alpha, const Image& sure, const Image* cv_square = nullptr,
+                   const Image* cv_variance = nullptr);
 
 }  // namespace proden::daemon

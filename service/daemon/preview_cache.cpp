@@ -10,6 +10,7 @@
 #include "daemon/files.hpp"
 #include "daemon/processor.hpp"
 #include "proden/io/image_writer.hpp"
+#include "proden/progressive.hpp"
 #include "proden/protocol/api.hpp"
 
 namespace proden::daemon {
@@ -50,7 +51,12 @@ Image read_error_layer(const std::string& exr) {
   for (const Image* i : {&x, &v, &y, &a, &s}) {
     if (i->empty() || !i->same_size(x) || i->channels() != x.channels()) return {};
   }
-  return result_error(x, v, y, a, s);
+  // The cross-validation layers, when the estimate used them (docs/error_estimate.md).
+  const Image q = read_layer(exr, std::string(layer::cv_square)),
+              qv = read_layer(exr, std::string(layer::cv_variance));
+  const bool cv = !q.empty() && q.same_size(x) && q.channels() == x.channels() && !qv.empty() &&
+                  qv.same_size(x) && qv.channels() == x.channels();
+  return cv ? result_error(x, v, y, a, s, &q, &qv) : result_error(x, v, y, a, s);
 }
 
 }  // namespace

@@ -422,24 +422,29 @@ TEST_CASE(
   // The daemon's frame-status keys (docs/api.md).
   REQUIRE(j.contains("estimated_mse"));
   const double est = j["estimated_mse"];
-  CHECK(j["estimated_mse_source"] == "variance+sure");
+  // 8 passes: the denoiser's error is cross-validated between the half buffers.
+  CHECK(j["estimated_mse_source"] == "variance+cross-validation");
   CHECK(j["estimated_error"]["mse"] == est);
-  CHECK(j["estimated_error"]["source"] == "variance+sure");
+  CHECK(j["estimated_error"]["source"] == "variance+cross-validation");
   CHECK(est > 0);
-  // Recomputed independently from the written layers: the mean over pixels and RGB of the
-  // result's SURE (1-a) var + a SURE - a (1-a) (y-x)^2, floored at the mean of (1-a)^2 var.
+  // Recomputed independently from the written layers (docs/error_estimate.md): the mean over
+  // pixels and RGB of (1-a) var + a m - a (1-a) (y-x)^2 with the denoiser's MSE
+  // m = (cvsquare - cvvariance) / sqrt(2), floored at the mean of (1-a)^2 var.
   int w = 0, h = 0;
   const auto x = read_exr(out, {"render.R", "render.G", "render.B"}, &w, &h);
   const auto v = read_exr(out, {"variance.R", "variance.G", "variance.B"}, &w, &h);
   const auto y = read_exr(out, {"denoised.R", "denoised.G", "denoised.B"}, &w, &h);
   const auto a = read_exr(out, {"alpha.R", "alpha.G", "alpha.B"}, &w, &h);
-  const auto sure = read_exr(out, {"sure.R", "sure.G", "sure.B"}, &w, &h);
+  read_exr(out, {"sure.R", "sure.G", "sure.B"}, &w, &h);                      // present
   read_exr(out, {"mixvariance.R", "mixvariance.G", "mixvariance.B"}, &w, &h);  // present
+  const auto cq = read_exr(out, {"cvsquare.R", "cvsquare.G", "cvsquare.B"}, &w, &h);
+  const auto cv = read_exr(out, {"cvvariance.R", "cvvariance.G", "cvvariance.B"}, &w, &h);
   double sum = 0, floor = 0, n = 0;
   for (std::size_t c = 0; c < 3; ++c) {
     for (std::size_t p = 0; p < x[c].size(); ++p, ++n) {
       const double al = a[c][p], d = static_cast<double>(y[c][p]) - x[c][p];
-      sum += (1 - al) * v[c][p] + al * sure[c][p] - al * (1 - al) * d * d;
+      const double m = (static_cast<double>(cq[c][p]) - cv[c][p]) / std::sqrt(2.0);
+      sum += (1 - al) * v[c][p] + al * m - al * (1 - al) * d * d;
       floor += (1 - al) * (1 - al) * v[c][p];
     }
   }
@@ -457,7 +462,7 @@ TEST_CASE(
       {"proden:t_test", "on"},
       {"proden:variance_source", "between_passes"},
       {"proden:low_confidence", "false"},
-      {"proden:estimated_mse_source", "variance+sure"},
+      {"proden:estimated_mse_source", "variance+cross-validation"},
   };
   for (const auto& [k, value] : want) {
     INFO(k);

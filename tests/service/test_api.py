@@ -153,7 +153,7 @@ class ApiTest(SharedDaemonTest):
         self.assertEqual(s, 202, b)
         f = self.d.wait_passes(jid, 12, 2)
         self.assertEqual(f["spp"], 8.0)
-        self.assertEqual(f["estimated_error"]["source"], "variance+sure")
+        self.assertEqual(f["estimated_error"]["source"], "variance+cross-validation")
         self.assertGreater(f["estimated_mse"], 0)
         s, meta = self.d.frame(jid, 12)
         self.assertEqual((meta["width"], meta["height"]), (128, 128))

@@ -18,6 +18,9 @@ HEADER_FIELDS = ["proden:passes", "proden:spp", "proden:inputs", "proden:denoise
                  "proden:variance_source", "proden:low_confidence", "proden:estimated_mse",
                  "proden:estimated_mse_source"]
 LAYERS = ["render", "variance", "denoised", "alpha", "sure", "mixvariance"]
+# The error estimate's cross-validation layers: written when it cross-validated (two passes and
+# a denoiser that does not read the halves itself: docs/error_estimate.md).
+CV_LAYERS = ["cvsquare", "cvvariance"]
 
 
 def exr_header(data):
@@ -93,14 +96,14 @@ class PublishTest(SharedDaemonTest):
         self.assertEqual(hdr["proden:denoiser"], "nlmeans")
         self.assertEqual(hdr["proden:inputs"], "HDR+ALB+NRM+DEP")
         chans = channels(attrs)
-        for layer in LAYERS:
+        for layer in LAYERS + CV_LAYERS:
             for c in "RGB":
                 self.assertIn("%s.%s" % (layer, c), chans)
         # The header's estimated error is the frame status's, to the last bit.
         self.assertEqual(float(hdr["proden:estimated_mse"]), status["estimated_mse"])
         self.assertEqual(hdr["proden:estimated_mse_source"], status["estimated_mse_source"])
         self.assertEqual(status["estimated_error"]["mse"], status["estimated_mse"])
-        self.assertEqual(status["estimated_error"]["source"], "variance+sure")
+        self.assertEqual(status["estimated_error"]["source"], "variance+cross-validation")
         self.assertEqual(json.loads(hdr["proden:estimated_error"]), status["estimated_error"])
         s, h, png = self.d.request(
             "GET", "/api/v1/jobs/%s/frames/1/image?format=png&layer=mixvariance" % jid)
@@ -191,6 +194,7 @@ class PublishTest(SharedDaemonTest):
         self.assertEqual(hdr["proden:estimated_mse_source"], "variance")
         self.assertEqual(status["estimated_error"]["source"], "variance")
         self.assertNotIn("mixvariance.R", channels(attrs))
+        self.assertNotIn("cvsquare.R", channels(attrs))
         s, b = self.d.json("GET", "/api/v1/jobs/%s/frames/1/image?format=png&layer=mixvariance" % jid)
         self.assertEqual((s, b["error"]["code"]), (404, "layer_not_available"))
 

@@ -277,7 +277,11 @@ TEST_CASE("a whole-frame denoiser runs once over the full image and tiles equal 
       CHECK(p.halo() == p.mixer()->radius() + o.ttest.radius);
       const PipelineResult r = p.execute(f);
       INFO("tile " << tile << ", divergence " << r.divergence);
-      CHECK(whole->calls.load() == (method == DivergenceMethod::analytic ? 1 : 1 + o.probes.count));
+      // One run for y (plus the probes), and one on each half for the error estimate's
+      // cross-validation (docs/error_estimate.md).
+      CHECK(r.estimated_error.source == "variance+cross-validation");
+      CHECK(whole->calls.load() ==
+            (method == DivergenceMethod::analytic ? 1 : 1 + o.probes.count) + 2);
       CHECK(whole->partial_calls.load() == 0);
       CHECK(r.denoiser == "whole-gaussian");
       CHECK(max_abs_diff(r.denoised, ref.denoised) <= 1e-6);
@@ -418,18 +422,18 @@ TEST_CASE("the pipeline asks the accumulator only for what its denoiser reads",
   CHECK_FALSE(reads("nlmeans", false).features);
   CHECK_FALSE(reads("gaussian", true).features);
   CHECK_FALSE(reads("none", true).features);
-  // NFOR regresses each half buffer on the other's weights (docs/nfor.md): only it, and the
-  // cascade that runs it (docs/cascade.md), read halves.
+  // NFOR regresses each half buffer on the other's weights (docs/nfor.md), and the cascade runs
+  // it (docs/cascade.md).
   CHECK(reads("cascade", true).halves);
   CHECK(reads("cascade", true).features);
   CHECK(reads("nfor", true).halves);
   CHECK(reads("nfor", true).features);
   CHECK(reads("nfor", false).halves);
   CHECK_FALSE(reads("nfor", false).features);
-  for (const auto& d : denoisers()) {
-    if (d.name != "nfor" && d.name != "cascade")
-      CHECK_FALSE(reads(std::string(d.name), true).halves);
-  }
+  // Every other denoiser reads them for the error estimate, which cross-validates it on half A
+  // against half B (docs/error_estimate.md); "none" reads nothing.
+  for (const auto& d : denoisers()) CHECK(reads(std::string(d.name), true).halves);
+  CHECK_FALSE(reads("none", true).halves);
   // A frame estimated that way runs, and its inputs say what was used.
   FrameAccumulator f;
   for (std::uint64_t k = 0; k < 3; ++k) {
@@ -459,8 +463,10 @@ TEST_CASE("a tiled denoiser sees each pixel once: no tile re-denoises a halo",
   p.set_denoiser(counted);
   p.commit();
   const PipelineResult got = p.execute(f);
-  CHECK(counted->calls.load() == 6 * 4);
-  CHECK(counted->pixels.load() == 45 * 31);
+  // Every pixel once for y, and once on each half for the error estimate's cross-validation.
+  CHECK(got.estimated_error.source == "variance+cross-validation");
+  CHECK(counted->calls.load() == 3 * 6 * 4);
+  CHECK(counted->pixels.load() == 3 * 45 * 31);
   CHECK(same(got.result, want.result));
   CHECK(same(got.denoised, want.denoised));
   CHECK(same(got.sure, want.sure));

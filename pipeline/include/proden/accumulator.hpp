@@ -58,7 +58,7 @@ struct FrameEstimate {
   // Feature means per half (each empty unless half_mean is set, the frame carries the feature and
   // the state has feature halves: a state restored from format v1 has none).
   std::array<Image, 2> half_albedo, half_normal, half_depth;
-  Image albedo, normal, depth;         // feature means (empty where the frame has none)
+  Image albedo, normal, depth;  // feature means (empty where the frame has none)
   Image albedo_variance, normal_variance, depth_variance;  // variance of the feature means
   Image passes;  // 1 channel: passes that contributed to each pixel
   VarianceSource variance_source = VarianceSource::between_passes;

@@ -39,11 +39,36 @@ struct ErrorInputs {
   const Image* denoised = nullptr;  // y
   const Image* alpha = nullptr;     // alpha (final)
   const Image* sure = nullptr;      // SURE(y)
+  // Half-buffer cross-validation (docs/error_estimate.md, "Cross-validation"): the denoiser run on
+  // each half alone, compared with the other, independent half. When set, they measure the
+  // denoiser's error in place of SURE (which the features' noise biases low):
+  const Image* cv_square = nullptr;    // ((y_A - x_B)^2 + (y_B - x_A)^2) / 2
+  const Image* cv_variance = nullptr;  // (Var[x_A] + Var[x_B]) / 2
 };
 
+// MSE of a filter's output at the frame's samples per MSE of the same filter on half of them:
+// 1/2 where its error is all variance (falls as 1/spp), 1 where it is all bias; 1/sqrt(2), the
+// geometric middle, is within sqrt(2) of either (docs/error_estimate.md, "Cross-validation").
+inline constexpr double kHalfToFullMse = 0.70710678118654752;
+
+// One element's (pixel and channel's) estimated squared error of z = x + a (y - x), split as the
+// estimate's model splits it (docs/error_estimate.md, "The model"): `scaled` is proportional to
+// the variance estimate, `measured` is not, `floor` = (1-a)^2 Var[x]. With the denoiser's own MSE
+// m:
+//   e = (1-a) v + a m - a (1-a) d^2,  d = y - x,
+// m = SURE(y) (sure_error) or (cv_square - cv_variance) kHalfToFullMse (cv_error). Non-finite
+// inputs count as 0, as the pipeline's stages see them.
+struct ElementError {
+  double scaled = 0.0, measured = 0.0, floor = 0.0;
+  double value() const { return scaled + measured; }
+};
+ElementError render_error(double v);  // denoiser "none": e = Var[x]
+ElementError sure_error(double v, double a, double d, double sure);
+ElementError cv_error(double v, double a, double d, double cv_square, double cv_variance);
+
 struct EstimatedError {
-  // Point estimates (mean over pixels and RGB). mse equals estimated_result_mse() (or the mean of
-  // Var[x] without a denoised image).
+  // Point estimates (mean over pixels and RGB). mse is max(mean e, mean (1-a)^2 Var[x]) (the
+  // mean of Var[x] without a denoised image).
   double mse = 0.0;
   double relmse = 0.0;          // mean of e / (z^2 + 0.01)
   double equivalent_spp = 0.0;  // spp * render_relmse / relmse
@@ -60,7 +85,7 @@ struct EstimatedError {
   // floor and has no upper bound (mse_high, relmse_high unbounded, equivalent_spp_low 0).
   bool consistent = true;
   NoiseScope noise_scope = NoiseScope::frame;
-  std::string source = "variance";   // "variance" | "variance+sure"
+  std::string source = "variance";   // "variance" | "variance+sure" | "variance+cross-validation"
   std::string calibration = "none";  // what calibrated the model ("none": raw pipeline numbers)
 };
 

@@ -133,6 +133,10 @@ inline constexpr std::string_view denoised = "denoised";         // y
 inline constexpr std::string_view alpha = "alpha";               // alpha' (final mixing weight)
 inline constexpr std::string_view sure = "sure";                 // SURE of y
 inline constexpr std::string_view mix_variance = "mixvariance";  // Var[x] as mixer/t-test read it
+// The error estimate's cross-validation (docs/error_estimate.md): PipelineResult::cv_square,
+// cv_variance.
+inline constexpr std::string_view cv_square = "cvsquare";
+inline constexpr std::string_view cv_variance = "cvvariance";
 }  // namespace layer
 // All of them, "result" first.
 std::span<const std::string_view> layer_names();
@@ -152,6 +156,7 @@ inline constexpr std::string_view variance_sure = "variance+sure";
 // whole run.
 struct StageTimings {
   double denoise = 0, sure = 0, mixer = 0, ttest = 0, compose = 0;
+  double cross_validation = 0;  // the error estimate's denoiser run on half A (CPU s)
   double wall = 0;
 };
 
@@ -163,10 +168,14 @@ struct PipelineResult {
   Image alpha;         // alpha' (after the t-test, or the mixer's alpha with t_test off)
   Image sure;          // SURE of y
   Image mix_variance;  // Var[x] as the mixer and t-test read it (pooled over (2r+1)^2)
-  // The estimated error (docs/error_estimate.md). Its mse is the mean over pixels and RGB of the
-  // result's SURE, (1-a) Var[x] + a SURE(y) - a (1-a) (y-x)^2 (it keeps the x-y covariance that
-  // (1-a)^2 Var[x] + a^2 SURE drops), floored at the mean of (1-a)^2 Var[x] (MSE(z) >= that when
-  // div >= 0); the mean of Var[x] when nothing was denoised.
+  // The filter run on each half against the other half's render: ((y_A - x_B)^2 + (y_B - x_A)^2)
+  // / 2 and (Var[x_A] + Var[x_B]) / 2, what the estimated error measured the denoiser's error
+  // with (empty when it used SURE; docs/error_estimate.md, "Cross-validation").
+  Image cv_square, cv_variance;
+  // The estimated error (docs/error_estimate.md): the mean over pixels and RGB of
+  // (1-a) Var[x] + a m - a (1-a) (y-x)^2 with m the denoiser's error (cross-validated between the
+  // halves, else SURE), floored at the mean of (1-a)^2 Var[x]; the mean of Var[x] when nothing
+  // was denoised.
   EstimatedError estimated_error;
   StageTimings timings;
   std::string denoiser, mixer, divergence;  // what ran ("none" for stages that did not)
@@ -232,6 +241,9 @@ class Pipeline {
   std::string mixer_weights_ = "none";
   bool analytic_ = false;
   EstimateOptions reads_{.halves = false, .features = false};
+  // The error estimate cross-validates the denoiser on half A against half B (a denoiser that
+  // reads the halves itself, NFOR, keeps SURE: docs/error_estimate.md).
+  bool cross_validate_ = false;
   int halo_ = 0;
   std::unique_ptr<Scratch> scratch_;
 };
