@@ -272,15 +272,17 @@ struct Pipeline::Scratch {
   struct Half {
     Image x, var, pooled, var_w;
     Buffer y;
-    std::size_t floats() const { return x.data().size() + var.data().size() + y.capacity(); }
+    std::size_t floats() const {
+      return x.data().size() + var.data().size() + pooled.data().size() + var_w.data().size() +
+             y.capacity();
+    }
   };
-  std::array<Half, 2> cv;
+  Half cv;  // one half at a time
   tbb::enumerable_thread_specific<Tile> tiles;
 
   std::size_t bytes() const {
     std::size_t floats = x.data().size() + var.data().size() + box_tmp.data().size() +
-                         var_weights.data().size() + full.floats() + cv[0].floats() +
-                         cv[1].floats();
+                         var_weights.data().size() + full.floats() + cv.floats();
     for (const Tile& t : tiles) floats += t.floats();
     return floats * sizeof(float);
   }
@@ -652,8 +654,21 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
     // with its own Var[x_h] (read by the weights as the full run reads its own: max(own,
     // pooled)) and its own feature means; the feature variances stay the full frame's (measured
     // choice, docs/error_estimate.md). The other half is independent of all of it. No Jacobian.
+    // Per element (docs/error_estimate.md, "Cross-validation"): each half's denoised image
+    // against the other half's render, E[(y_A - x_B)^2] = MSE(y_A) + Var[x_B], averaged over the
+    // two directions: cv = ((y_A - x_B)^2 + (y_B - x_A)^2) / 2, cv_var = (v_A + v_B) / 2.
+    res.cv_square = Image(W, H, 3, 0.0f);
+    res.cv_variance = Image(W, H, 3, 0.0f);
+    const auto clean = [](float v, float hi) {
+      return std::isfinite(v) ? std::clamp(v, -hi, hi) : 0.0f;
+    };
+    for (std::size_t i = 0; i < res.cv_variance.data().size(); ++i) {
+      res.cv_variance.data()[i] =
+          0.5f * (std::max(clean(frame.half_variance[0].data()[i], kMaxVariance), 0.0f) +
+                  std::max(clean(frame.half_variance[1].data()[i], kMaxVariance), 0.0f));
+    }
     for (int h = 0; h < 2; ++h) {
-      Scratch::Half& hs = s.cv[static_cast<std::size_t>(h)];
+      Scratch::Half& hs = s.cv;
       sanitize_into(frame.half_mean[h], -kMaxValue, kMaxValue, hs.x);
       sanitize_into(frame.half_variance[h], 0.0f, kMaxVariance, hs.var);
       const Image* weights = &hs.var;
@@ -691,26 +706,17 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
         });
         res.timings.cross_validation += cpu.combine(std::plus<double>());
       }
-    }
-    // Per element (docs/error_estimate.md, "Cross-validation"): each half's denoised image
-    // against the other half's render, E[(y_A - x_B)^2] = MSE(y_A) + Var[x_B], averaged over the
-    // two directions: cv = ((y_A - x_B)^2 + (y_B - x_A)^2) / 2, cv_var = (v_A + v_B) / 2.
-    res.cv_square = Image(W, H, 3);
-    res.cv_variance = Image(W, H, 3);
-    const Scratch::Half &A = s.cv[0], &B = s.cv[1];
-    for (int c = 0; c < 3; ++c) {
-      const auto xa = A.x.plane(c), xb = B.x.plane(c), va = A.var.plane(c), vb = B.var.plane(c);
-      auto q = res.cv_square.plane(c), qv = res.cv_variance.plane(c);
-      for (int py = 0; py < H; ++py) {
-        const float* ya = A.y.row(py, c);
-        const float* yb = B.y.row(py, c);
-        for (int px = 0; px < W; ++px) {
-          const std::size_t i = static_cast<std::size_t>(py) * W + px;
-          const double ab = static_cast<double>(ya[px]) - xb[i];
-          const double ba = static_cast<double>(yb[px]) - xa[i];
-          q[i] = static_cast<float>(
-              std::min(0.5 * (ab * ab + ba * ba), static_cast<double>(kMaxVariance)));
-          qv[i] = 0.5f * (va[i] + vb[i]);
+      const Image& other = frame.half_mean[static_cast<std::size_t>(1 - h)];
+      for (int c = 0; c < 3; ++c) {
+        const auto xo = other.plane(c);
+        auto q = res.cv_square.plane(c);
+        for (int py = 0; py < H; ++py) {
+          const float* yh = hs.y.row(py, c);
+          for (int px = 0; px < W; ++px) {
+            const std::size_t i = static_cast<std::size_t>(py) * W + px;
+            const double d = static_cast<double>(yh[px]) - clean(xo[i], kMaxValue);
+            q[i] = static_cast<float>(std::min(q[i] + 0.5 * d * d, double{kMaxVariance}));
+          }
         }
       }
     }
