@@ -33,11 +33,7 @@ Inputs inputs(int w, int h, unsigned seed) {
   Inputs in;
   in.w = w;
   in.h = h;
-  in.x = Image(w, h, 3);
-  in.y = Image(w, h, 3);
-  in.var = Image(w, h, 3);
-  in.sure = Image(w, h, 3);
-  in.div = Image(w, h, 3);
+  for (Image* plane : {&in.x, &in.y, &in.var, &in.sure, &in.div}) *plane = Image(w, h, 3);
   in.passes = Image(w, h, 1);
   for (int yy = 0; yy < h; ++yy) {
     for (int xx = 0; xx < w; ++xx) {
