@@ -95,12 +95,10 @@ void check(const Image* img, const Image& like, const char* what) {
   }
 }
 
-}  // namespace
-
-namespace {
 double finite_or_zero(double v) {
   return std::isfinite(v) ? v : 0.0;
 }
+
 }  // namespace
 
 ElementError render_error(double v) {
