@@ -11,8 +11,8 @@ namespace {
 
 constexpr double kTinyVariance = 1e-30;  // keeps 1 / var finite where a pixel is exact
 constexpr int kBlock = 16;               // window sums are split at absolute multiples of this
-constexpr int kStrip =
-    32;  // lanes (columns) the vertical pass keeps in flight; its sums stay in L2
+// Lanes (columns) the vertical pass keeps in flight: its prefix and suffix sums stay in L2.
+constexpr int kStrip = 32;
 
 // Vertical window sums: for every output row y in [o0, o1) and lane i in [0, w),
 //   out_y[i] = sum of in_q[i] over q in [max(y - r, lo), min(y + r + 1, hi)),
