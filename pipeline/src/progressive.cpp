@@ -41,9 +41,21 @@ constexpr float kMaxGaussianSigma = 21.0f;
 
 // Copies `src` into `dst` (reusing dst's allocation when the size matches) with non-finite values
 // set to 0 and the rest clamped to [lo, hi].
+inline float sanitized(float v, float lo, float hi) {
+  return std::isfinite(v) ? std::clamp(v, lo, hi) : 0.0f;
+}
 void sanitize_into(const Image& src, float lo, float hi, Image& dst) {
   dst = src;
-  for (float& v : dst.data()) v = std::isfinite(v) ? std::clamp(v, lo, hi) : 0.0f;
+  for (float& v : dst.data()) v = sanitized(v, lo, hi);
+}
+
+// Var[x] as the denoiser's weights read it when it is estimated between passes (docs/pipeline.md,
+// "Few passes"): max(own, pooled), into `out`.
+void weights_variance(const Image& own, const Image& pooled, Image& out) {
+  out = own;
+  const auto p = pooled.data();
+  auto o = out.data();
+  for (std::size_t i = 0; i < o.size(); ++i) o[i] = std::max(o[i], p[i]);
 }
 
 bool all_zero(const Image& img) {
@@ -505,10 +517,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
       frame.variance_source != VarianceSource::renderer && frame.passes.same_size(frame.mean);
   const Image* var_weights = &var;
   if (estimated_variance) {
-    s.var_weights = var;
-    for (std::size_t i = 0; i < s.var_weights.data().size(); ++i) {
-      s.var_weights.data()[i] = std::max(s.var_weights.data()[i], res.mix_variance.data()[i]);
-    }
+    weights_variance(var, res.mix_variance, s.var_weights);
     var_weights = &s.var_weights;
   }
   const DenoiseInputs din = denoise_inputs(frame, x, *var_weights, reads_.features);
@@ -659,25 +668,17 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
     // two directions: cv = ((y_A - x_B)^2 + (y_B - x_A)^2) / 2, cv_var = (v_A + v_B) / 2.
     res.cv_square = Image(W, H, 3, 0.0f);
     res.cv_variance = Image(W, H, 3, 0.0f);
-    const auto clean = [](float v, float hi) {
-      return std::isfinite(v) ? std::clamp(v, -hi, hi) : 0.0f;
-    };
-    for (std::size_t i = 0; i < res.cv_variance.data().size(); ++i) {
-      res.cv_variance.data()[i] =
-          0.5f * (std::max(clean(frame.half_variance[0].data()[i], kMaxVariance), 0.0f) +
-                  std::max(clean(frame.half_variance[1].data()[i], kMaxVariance), 0.0f));
-    }
     for (int h = 0; h < 2; ++h) {
       Scratch::Half& hs = s.cv;
       sanitize_into(frame.half_mean[h], -kMaxValue, kMaxValue, hs.x);
       sanitize_into(frame.half_variance[h], 0.0f, kMaxVariance, hs.var);
+      auto qv = res.cv_variance.data();
+      const auto vh = hs.var.data();
+      for (std::size_t i = 0; i < qv.size(); ++i) qv[i] += 0.5f * vh[i];
       const Image* weights = &hs.var;
       if (estimated_variance) {
         pool_variance(hs.var, o.variance_pool_radius, s.box_tmp, hs.pooled);
-        hs.var_w = hs.var;
-        auto w = hs.var_w.data();
-        const auto pooled_h = hs.pooled.data();
-        for (std::size_t i = 0; i < w.size(); ++i) w[i] = std::max(w[i], pooled_h[i]);
+        weights_variance(hs.var, hs.pooled, hs.var_w);
         weights = &hs.var_w;
       }
       DenoiseInputs dh = denoise_inputs(frame, hs.x, *weights, reads_.features);
@@ -714,7 +715,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
           const float* yh = hs.y.row(py, c);
           for (int px = 0; px < W; ++px) {
             const std::size_t i = static_cast<std::size_t>(py) * W + px;
-            const double d = static_cast<double>(yh[px]) - clean(xo[i], kMaxValue);
+            const double d = static_cast<double>(yh[px]) - sanitized(xo[i], -kMaxValue, kMaxValue);
             q[i] = static_cast<float>(std::min(q[i] + 0.5 * d * d, double{kMaxVariance}));
           }
         }
