@@ -45,18 +45,18 @@ std::string fmt(double v) {
 
 // Reads the layers `error` is computed from; empty Image when one is missing.
 Image read_error_layer(const std::string& exr) {
-  const Image x = read_layer(exr, "render"), v = read_layer(exr, "variance"),
-              y = read_layer(exr, "denoised"), a = read_layer(exr, "alpha"),
-              s = read_layer(exr, "sure");
+  const std::vector<Image> l =
+      read_layers(exr, {"render", "variance", "denoised", "alpha", "sure",
+                        std::string(layer::cv_square), std::string(layer::cv_variance)});
+  const Image &x = l[0], &v = l[1], &y = l[2], &a = l[3], &s = l[4], &q = l[5], &qv = l[6];
+  const auto fits = [&x](const Image& i) {
+    return !i.empty() && i.same_size(x) && i.channels() == x.channels();
+  };
   for (const Image* i : {&x, &v, &y, &a, &s}) {
-    if (i->empty() || !i->same_size(x) || i->channels() != x.channels()) return {};
+    if (!fits(*i)) return {};
   }
   // The cross-validation layers, when the estimate used them (docs/error_estimate.md).
-  const Image q = read_layer(exr, std::string(layer::cv_square)),
-              qv = read_layer(exr, std::string(layer::cv_variance));
-  const bool cv = !q.empty() && q.same_size(x) && q.channels() == x.channels() && !qv.empty() &&
-                  qv.same_size(x) && qv.channels() == x.channels();
-  return cv ? result_error(x, v, y, a, s, &q, &qv) : result_error(x, v, y, a, s);
+  return fits(q) && fits(qv) ? result_error(x, v, y, a, s, &q, &qv) : result_error(x, v, y, a, s);
 }
 
 }  // namespace

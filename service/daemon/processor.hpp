@@ -53,6 +53,8 @@ std::string known_layers();
 
 // Reads layer `layer` ("result" = R,G,B) of a published EXR; empty Image if absent.
 Image read_layer(const std::string& exr_path, const std::string& layer);
+// The same for several layers, decoding the file once.
+std::vector<Image> read_layers(const std::string& exr_path, const std::vector<std::string>& layers);
 
 // Writes an 8-bit sRGB image as a PNG, atomically.
 struct Rgb8;
