@@ -1,8 +1,10 @@
 // PreviewCache: layer renditions of a published EXR, made once per version.
 #include <catch2/catch.hpp>
 
+#include <cmath>
 #include <map>
 
+#include "daemon/colour_map.hpp"
 #include "daemon/preview_cache.hpp"
 #include "daemon/processor.hpp"
 #include "proden/io/image_writer.hpp"
@@ -83,11 +85,16 @@ TEST_CASE("PreviewCache: a layer the frame lacks is 404", "[daemon][preview]") {
 namespace {
 
 // A published EXR with every layer the pipeline writes (alpha a gradient, errors positive).
-fs::path write_full(const test::TempDir& t) {
+// With `cv`, also the error estimate's cross-validation layers (docs/error_estimate.md).
+fs::path write_full(const test::TempDir& t, bool cv = false) {
   const int w = 16, h = 8;
   std::map<std::string, Image> layers;
   for (const char* n : {"", "render.", "variance.", "denoised.", "alpha.", "sure."}) {
     layers[n] = Image(w, h, 3);
+  }
+  if (cv) {
+    layers["cvsquare."] = Image(w, h, 3, 4e-4f);
+    layers["cvvariance."] = Image(w, h, 3, 1e-4f);
   }
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
@@ -103,7 +110,7 @@ fs::path write_full(const test::TempDir& t) {
   }
   std::vector<io::NamedChannel> ch;
   for (const auto& [n, img] : layers) io::add_layer(ch, n, img);
-  const fs::path p = t.path() / "full_0001.exr";
+  const fs::path p = t.path() / (cv ? "full_cv_0001.exr" : "full_0001.exr");
   io::write_image(p.string(), w, h, ch);
   return p;
 }
@@ -156,6 +163,37 @@ TEST_CASE("PreviewCache: alpha and errors are colour-mapped with their range",
 
   const auto err = pc.get(t.path() / "cache", exr, 1, 1, png("error"));
   CHECK(header(err, "X-Proden-Scale") == "log");
+}
+
+TEST_CASE("PreviewCache: the error map uses the cross-validation layers when they are there",
+          "[daemon][preview]") {
+  test::TempDir t;
+  PreviewCache pc;
+  PreviewCache::Request r;
+  r.format = "exr";
+  r.layer = "error";
+  for (const bool cv : {false, true}) {
+    INFO("cross-validation layers " << cv);
+    const fs::path exr = write_full(t, cv);
+    // A cache of its own per file: renditions are keyed by (version, parameters).
+    const fs::path cache = t.path() / (cv ? "cache_cv" : "cache");
+    const Image got = read_layer(pc.get(cache, exr, 1, 1, r).path.string(), "result");
+    const std::string e = exr.string();
+    const Image x = read_layer(e, "render"), v = read_layer(e, "variance"),
+                y = read_layer(e, "denoised"), a = read_layer(e, "alpha"),
+                s = read_layer(e, "sure");
+    const Image q = read_layer(e, "cvsquare"), qv = read_layer(e, "cvvariance");
+    REQUIRE(q.empty() == !cv);
+    const Image want = cv ? result_error(x, v, y, a, s, &q, &qv) : result_error(x, v, y, a, s);
+    const Image other = cv ? result_error(x, v, y, a, s) : Image{};
+    REQUIRE(got.same_size(want));
+    bool differs = false;
+    for (std::size_t i = 0; i < want.data().size(); ++i) {
+      CHECK(got.data()[i] == Approx(want.data()[i]).margin(1e-9));
+      if (cv && std::abs(other.data()[i] - want.data()[i]) > 1e-6f) differs = true;
+    }
+    if (cv) CHECK(differs);  // the map is not SURE's
+  }
 }
 
 TEST_CASE("PreviewCache: thumbnails and exposures are separate renditions", "[daemon][preview]") {
