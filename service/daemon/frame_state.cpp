@@ -28,11 +28,8 @@ std::uint64_t text_hash(const std::string& s) {
   return hash_bytes({reinterpret_cast<const unsigned char*>(s.data()), s.size()}, 0x66726d);
 }
 
-}  // namespace
-
-json to_json(const FrameRecord& r) {
-  json ingested = json::array();
-  for (const auto& p : r.ingested) ingested.push_back(protocol::to_json(p));
+// The record without its "ingested" list (see record_text).
+json record_head(const FrameRecord& r) {
   return {{"frame", r.frame},
           {"estimated_error", r.estimated_error},
           {"renderer", r.renderer},
@@ -52,8 +49,49 @@ json to_json(const FrameRecord& r) {
           {"inputs", r.inputs},
           {"variance_source", r.variance_source},
           {"low_confidence", r.low_confidence},
-          {"digest", r.digest},
-          {"ingested", ingested}};
+          {"digest", r.digest}};
+}
+
+// Invalid UTF-8 (a message quoting a file) is replaced, never a reason to fail the commit.
+std::string dump_text(const json& j) {
+  return j.dump(-1, ' ', false, json::error_handler_t::replace);
+}
+
+// The record as persisted: one pass identity per element of "ingested", written as text one by
+// one rather than built as a JSON tree first. The list grows with every pass a frame has had and
+// is written at every commit; a tree of it costs about ten small allocations per pass, which made
+// the daemon's heap fragment in step with its passes (bench/results/soak.md).
+std::string record_text(const FrameRecord& r, std::size_t accumulator_bytes) {
+  json head = record_head(r);
+  head["accumulator_bytes"] = accumulator_bytes;
+  std::string text = dump_text(head);
+  text.pop_back();  // the closing '}'
+  text.reserve(text.size() + 24 + r.ingested.size() * 160);
+  text += ",\"ingested\":[";
+  for (std::size_t i = 0; i < r.ingested.size(); ++i) {
+    const protocol::PassIdentity& p = r.ingested[i];
+    if (i > 0) text += ',';
+    text += "{\"pass\":";
+    text += dump_text(json(p.pass));
+    text += ",\"source\":";
+    text += dump_text(json(p.source));
+    text += ",\"size\":" + std::to_string(p.size);
+    text += ",\"mtime_ns\":" + std::to_string(p.mtime_ns);
+    text += ",\"content_hash\":" + std::to_string(p.content_hash);
+    text += '}';
+  }
+  text += "]}";
+  return text;
+}
+
+}  // namespace
+
+json to_json(const FrameRecord& r) {
+  json j = record_head(r);
+  json ingested = json::array();
+  for (const auto& p : r.ingested) ingested.push_back(protocol::to_json(p));
+  j["ingested"] = std::move(ingested);
+  return j;
 }
 
 FrameRecord frame_record_from_json(const json& j) {
@@ -99,12 +137,9 @@ std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
   }
   // The blob: the accumulator, then the renderer AOVs (issue 13); the record says where it splits.
   std::vector<std::uint8_t> blob = frame.serialize();
-  json rec = to_json(record);
-  rec["accumulator_bytes"] = blob.size();
+  const std::string text = record_text(record, blob.size());
   const std::vector<std::uint8_t> aov_blob = aovs.serialize();
   blob.insert(blob.end(), aov_blob.begin(), aov_blob.end());
-  // Invalid UTF-8 (a message quoting a file) is replaced, never a reason to fail the commit.
-  const std::string text = rec.dump(-1, ' ', false, json::error_handler_t::replace);
   std::vector<std::uint8_t> out(sizeof kMagic + 32 + text.size() + blob.size());
   std::size_t at = 0;
   auto put = [&out, &at](const void* p, std::size_t n) {

@@ -20,6 +20,7 @@
 #include "daemon/events.hpp"
 #include "daemon/files.hpp"
 #include "daemon/http_server.hpp"
+#include "daemon/memory.hpp"
 #include "daemon/metrics.hpp"
 
 namespace proden::daemon {
@@ -150,6 +151,10 @@ int run_serve(Config c, const std::string& token) {
   sigaddset(&set, SIGINT);
   ::pthread_sigmask(SIG_BLOCK, &set, nullptr);
   ::signal(SIGPIPE, SIG_IGN);
+
+  // Resident memory that follows what the daemon holds (daemon/memory.hpp): blocks of 1 MiB and
+  // more (decoded passes, scanline buffers, pipeline planes) are unmapped when freed.
+  configure_allocator(std::size_t{1} << 20, 4);
 
   Metrics metrics;
   EventHub events(c.limits.sse_history);

@@ -1,0 +1,35 @@
+// Gives the heap's free pages back to the system, so that the daemon's resident memory follows
+// what it holds rather than the high-water mark of its largest frame run (glibc keeps freed
+// memory in per-thread arenas otherwise; bench/results/soak.md measured the difference).
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstddef>
+
+namespace proden::daemon {
+
+// Fixes glibc's thresholds (call once at start-up, before threads): blocks of at least
+// `mmap_threshold` bytes are mapped and unmapped on free, freed memory at an arena's top beyond
+// 2 x that is returned, and at most `arenas` arenas are made (default 8 per core). Without it,
+// glibc raises both thresholds to the largest block freed so far (OIIO frees 20-64 MB scanline
+// buffers per read), after which such buffers stay resident in every worker's arena.
+void configure_allocator(std::size_t mmap_threshold, int arenas);
+
+// Returns free heap pages to the system (malloc_trim): the bytes of resident memory released,
+// as measured from /proc/self/statm (0 where that is not available). No-op without glibc.
+std::size_t release_free_memory();
+
+// release_free_memory() at most once per `interval`, from any thread (the first call trims).
+class MemoryTrimmer {
+ public:
+  explicit MemoryTrimmer(std::chrono::milliseconds interval) : interval_(interval) {}
+  // True when this call trimmed.
+  bool maybe_trim();
+
+ private:
+  std::chrono::milliseconds interval_;
+  std::atomic<std::chrono::steady_clock::rep> last_{0};  // ticks of the last trim (0: never)
+};
+
+}  // namespace proden::daemon

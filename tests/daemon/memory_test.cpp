@@ -1,0 +1,50 @@
+// daemon/memory.hpp: freed heap pages go back to the system, at most once per interval.
+#include <catch2/catch.hpp>
+
+#include <cstring>
+#include <thread>
+#include <vector>
+
+#include "daemon/memory.hpp"
+
+using namespace proden::daemon;
+using namespace std::chrono_literals;
+
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define PRODEN_OWN_ALLOCATOR 1  // the sanitizers replace malloc: glibc's trim has nothing to do
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define PRODEN_OWN_ALLOCATOR 1
+#endif
+#endif
+
+TEST_CASE("Memory: a trim runs at most once per interval", "[daemon][memory]") {
+  MemoryTrimmer t(50ms);
+  CHECK(t.maybe_trim());
+  CHECK_FALSE(t.maybe_trim());
+  std::this_thread::sleep_for(80ms);
+  CHECK(t.maybe_trim());
+  CHECK_FALSE(t.maybe_trim());
+}
+
+#if defined(__GLIBC__) && !defined(PRODEN_OWN_ALLOCATOR)
+TEST_CASE("Memory: free pages between live blocks go back to the system", "[daemon][memory]") {
+  // 64 MiB of small blocks, then all but one in 64 freed: the heap cannot shrink from its top
+  // (live blocks are spread through it), yet most of its pages hold nothing.
+  constexpr std::size_t kBlock = 1024, kCount = 64 * 1024;
+  std::vector<char*> blocks(kCount);
+  for (auto& b : blocks) {
+    b = new char[kBlock];
+    std::memset(b, 1, kBlock);
+  }
+  for (std::size_t i = 0; i < kCount; ++i) {
+    if (i % 64 != 0) {
+      delete[] blocks[i];
+      blocks[i] = nullptr;
+    }
+  }
+  const std::size_t released = release_free_memory();
+  CHECK(released > 32u * 1024 * 1024);
+  for (auto* b : blocks) delete[] b;
+}
+#endif
