@@ -20,6 +20,9 @@ namespace proden::daemon {
 
 // Writes `data` to `path` atomically; throws std::runtime_error naming the path.
 void write_file_atomic(const std::filesystem::path& path, std::span<const std::uint8_t> data);
+// The same for a file given in pieces, written in order (no copy of them into one buffer).
+void write_file_atomic(const std::filesystem::path& path,
+                       std::span<const std::span<const std::uint8_t>> pieces);
 void write_file_atomic(const std::filesystem::path& path, const std::string& text);
 // Makes the directory's entries (a rename or creation in it) durable.
 void fsync_dir(const std::filesystem::path& dir);

@@ -126,41 +126,72 @@ FrameRecord frame_record_from_json(const json& j) {
   return r;
 }
 
-std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
-                                            const FrameAccumulator& frame,
-                                            const AovAccumulator& aovs) {
+namespace {
+
+// The file in four pieces, in order (see the header for the layout): the head (magic, the record
+// and its hash, the blob's size), the accumulator, the renderer AOVs and the whole-file hash. The
+// pieces are written one after the other rather than copied into one buffer first: a 1080p frame
+// with features holds a few hundred MB of statistics, and a single buffer of the file would
+// double the daemon's peak memory at every commit (bench/results/daemon.md).
+struct StatePieces {
+  std::vector<std::uint8_t> head, accumulator, aovs;
+  std::uint64_t hash = 0;
+};
+
+StatePieces state_pieces(const FrameRecord& record, const FrameAccumulator& frame,
+                         const AovAccumulator& aovs) {
   for (const auto& [name, v] :
        {std::pair{"spp", record.spp}, {"estimated_mse", record.estimated_mse}}) {
     if (!std::isfinite(v)) {
       throw std::invalid_argument(std::string("refusing to persist a non-finite ") + name);
     }
   }
+  StatePieces p;
   // The blob: the accumulator, then the renderer AOVs (issue 13); the record says where it splits.
-  std::vector<std::uint8_t> blob = frame.serialize();
-  const std::string text = record_text(record, blob.size());
-  const std::vector<std::uint8_t> aov_blob = aovs.serialize();
-  blob.insert(blob.end(), aov_blob.begin(), aov_blob.end());
-  std::vector<std::uint8_t> out(sizeof kMagic + 32 + text.size() + blob.size());
-  std::size_t at = 0;
-  auto put = [&out, &at](const void* p, std::size_t n) {
-    if (n > 0) std::memcpy(out.data() + at, p, n);
-    at += n;
+  p.accumulator = frame.serialize();
+  p.aovs = aovs.serialize();
+  const std::string text = record_text(record, p.accumulator.size());
+  auto put = [&p](const void* data, std::size_t n) {
+    const auto* b = static_cast<const std::uint8_t*>(data);
+    p.head.insert(p.head.end(), b, b + n);
   };
   auto put64 = [&put](std::uint64_t v) { put(&v, sizeof v); };
+  p.head.reserve(sizeof kMagic + 24 + text.size());
   put(kMagic, sizeof kMagic);
   put64(text.size());
   put(text.data(), text.size());
   put64(text_hash(text));
-  put64(blob.size());
-  put(blob.data(), blob.size());
-  put64(file_hash(std::span<const std::uint8_t>(out).first(at)));
+  put64(p.accumulator.size() + p.aovs.size());
+  ByteHasher h(p.head.size() + p.accumulator.size() + p.aovs.size(), kFileSeed);
+  for (const auto* piece : {&p.head, &p.accumulator, &p.aovs}) h.update(*piece);
+  p.hash = h.finish();
+  return p;
+}
+
+}  // namespace
+
+std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
+                                            const FrameAccumulator& frame,
+                                            const AovAccumulator& aovs) {
+  const StatePieces p = state_pieces(record, frame, aovs);
+  std::vector<std::uint8_t> out;
+  out.reserve(p.head.size() + p.accumulator.size() + p.aovs.size() + sizeof p.hash);
+  for (const auto* piece : {&p.head, &p.accumulator, &p.aovs}) {
+    out.insert(out.end(), piece->begin(), piece->end());
+  }
+  const auto* h = reinterpret_cast<const std::uint8_t*>(&p.hash);
+  out.insert(out.end(), h, h + sizeof p.hash);
   return out;
 }
 
 void save_frame_state(const fs::path& path, const FrameRecord& record,
                       const FrameAccumulator& frame, const AovAccumulator& aovs) {
   try {
-    write_file_atomic(path, frame_state_bytes(record, frame, aovs));
+    const StatePieces p = state_pieces(record, frame, aovs);
+    const auto* h = reinterpret_cast<const std::uint8_t*>(&p.hash);
+    const std::span<const std::uint8_t> pieces[] = {
+        p.head, p.accumulator, p.aovs, {h, sizeof p.hash}};
+    write_file_atomic(path, pieces);
   } catch (const std::invalid_argument& e) {
     throw std::invalid_argument(path.string() + ": " + e.what());
   }

@@ -4,6 +4,7 @@
 
 #include <string>
 
+#include "daemon/files.hpp"
 #include "daemon/frame_state.hpp"
 #include "daemon_support.hpp"
 
@@ -35,7 +36,7 @@ TEST_CASE("Frame state: every pass identity reads back as the record's JSON form
   const std::vector<std::string> awkward = {
       "plain",
       "quote\" and backslash\\",
-      std::string("control \x01\x1f\n\t", 14),
+      std::string("control \x01\x1f\n\t", 12),
       "unicode \xc3\xa9\xe2\x82\xac",
       "invalid \xff\xfe utf-8",
       "",
@@ -85,4 +86,22 @@ TEST_CASE("Frame state: a record without passes still reads back", "[daemon][sta
   parse_frame_state(frame_state_bytes(r, acc), "7.state", &back);
   CHECK(back.ingested.empty());
   CHECK(back.frame == 7);
+}
+
+TEST_CASE("Frame state: the file written in pieces holds exactly frame_state_bytes",
+          "[daemon][state]") {
+  test::TempDir t;
+  FrameAccumulator acc;
+  acc.add(test::make_pass(16, 8, 2.0, 3), "a");
+  acc.add(test::make_pass(16, 8, 2.0, 4), "b");
+  const FrameRecord r =
+      record_with({{"a", "/r/a.exr", 10, 11, 12}, {"b", "/r/b.exr", 20, 21, 22}}, acc);
+  const auto path = t.path() / "7.state";
+  save_frame_state(path, r, acc);
+  const auto on_disk = read_file(path, 1u << 30);
+  REQUIRE(on_disk);
+  CHECK(*on_disk == frame_state_bytes(r, acc));
+  FrameRecord back;
+  load_frame_accumulator(path, &back);
+  CHECK(back.ingested.size() == 2);
 }
