@@ -12,8 +12,8 @@ namespace proden::daemon {
 // Fixes glibc's thresholds (call once at start-up, before threads): blocks of at least
 // `mmap_threshold` bytes are mapped and unmapped on free, freed memory at an arena's top beyond
 // 2 x that is returned, and at most `arenas` arenas are made (default 8 per core). Without it,
-// glibc raises both thresholds to the largest block freed so far (OIIO frees 20-64 MB scanline
-// buffers per read), after which such buffers stay resident in every worker's arena.
+// glibc raises both thresholds to the largest block freed so far (OIIO's scanline reads free
+// buffers of about 20 MB per pass), after which such blocks stay in every worker's arena.
 void configure_allocator(std::size_t mmap_threshold, int arenas);
 
 // Returns free heap pages to the system (malloc_trim): the bytes of resident memory released,
