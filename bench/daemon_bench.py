@@ -186,9 +186,12 @@ def percentile(xs, q):
     return xs[lo] + (xs[hi] - xs[lo]) * (k - lo)
 
 
-def lag_daemon(root, name):
+def lag_daemon(root, name, resident=None):
     # The shipped watch settings (settle 1 s, tick 200 ms, full scan every 2 s): the lag a farm sees.
-    d = Daemon(os.path.join(root, name), config={"watch": {}})
+    config = {"watch": {}}
+    if resident is not None:
+        config["max_resident_frames"] = resident
+    d = Daemon(os.path.join(root, name), config=config)
     os.makedirs(d.root, exist_ok=True)
     d.start()
     watch = os.path.join(d.allowed, "w")
@@ -198,9 +201,9 @@ def lag_daemon(root, name):
     return d, watch, jid
 
 
-def lag_reference(root, paths):
+def lag_reference(root, paths, resident=None):
     """One isolated update: a single pass into an idle daemon, rename -> SSE frame event."""
-    d, watch, _ = lag_daemon(root, "ref")
+    d, watch, _ = lag_daemon(root, "ref", resident)
     log = FrameEventLog(d)
     log.start()
     rows = []
@@ -216,11 +219,11 @@ def lag_reference(root, paths):
     return rows, stages
 
 
-def lag_run(root, paths, frames, rate, seconds, drain_s):
+def lag_run(root, paths, frames, rate, seconds, drain_s, resident=None):
     """Places passes round-robin over `frames` frames at `rate` passes/min for `seconds`, then
     waits up to `drain_s` for the last to be published. Returns the per-pass lags (None: not
     published within the drain), the stage means and the worker utilisation."""
-    d, watch, _ = lag_daemon(root, "r%d" % rate)
+    d, watch, _ = lag_daemon(root, "r%d" % rate, resident)
     log = FrameEventLog(d)
     log.start()
     n = int(rate * seconds / 60)
@@ -277,14 +280,14 @@ def lag(args, root):
     print("1920x1080 generic float EXR passes with features (%s; %.1f MB each), %d distinct "
           "(made in %.0f s), placed by hard link + rename" % (
               FEATURE_CHANNELS, os.path.getsize(paths[0]) / 1e6, len(paths), time.monotonic() - t0))
-    ref, ref_stages = lag_reference(root, paths)
+    ref, ref_stages = lag_reference(root, paths, args.resident)
     update = ref[1]
     print("reference: one pass into an idle daemon, rename -> frame event: first %.2f s, second "
           "%.2f s (the update time U below is the second)" % (ref[0], ref[1]))
     print("  stages: " + ", ".join("%s %.2f s" % (k, v[0]) for k, v in ref_stages.items()))
     results = []
     for rate in rates:
-        r = lag_run(root, paths, args.frames, rate, args.seconds, args.drain)
+        r = lag_run(root, paths, args.frames, rate, args.seconds, args.drain, args.resident)
         done = [x for x in r["lags"] if x is not None]
         third = max(1, len(r["lags"]) // 3)
         first = [x for x in r["lags"][:third] if x is not None]
@@ -304,12 +307,17 @@ def lag(args, root):
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"reference": ref, "reference_stages": ref_stages, "frames": args.frames,
+                       "resident": args.resident,
                        "seconds": args.seconds, "runs": results}, f)
     if args.png:
-        lag_plot(results, update, args.png)
+        base = None
+        if args.baseline:
+            with open(args.baseline) as f:
+                base = json.load(f)
+        lag_plot(results, update, args.png, base, args.label, args.baseline_label)
 
 
-def lag_plot(results, update, path):
+def lag_plot(results, update, path, base=None, label="", base_label="baseline"):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -324,8 +332,12 @@ def lag_plot(results, update, path):
     a.set_title("lag of each pass (10 frames, 1080p + features)")
     a.legend(fontsize=8)
     rates = [r["rate"] for r in results]
-    for key, lab in (("p50", "p50"), ("p99", "p99"), ("max", "max")):
-        b.plot(rates, [r[key] for r in results], "o-", label=lab)
+    for key, colour in (("p50", "C0"), ("p99", "C1"), ("max", "C2")):
+        b.plot(rates, [r[key] for r in results], "o-", color=colour,
+               label=(label + " " if label else "") + key)
+        if base:
+            b.plot([r["rate"] for r in base["runs"]], [r[key] for r in base["runs"]], "o:",
+                   color=colour, alpha=0.6, label=base_label + " " + key)
     b.axhline(2 * update, color="k", ls="--", lw=1, label="2 x update time")
     b.set_xlabel("farm rate (passes/min, all frames)")
     b.set_ylabel("lag (s)")
@@ -388,12 +400,28 @@ def main():
     ap.add_argument("--rates", default="30,60,120,240", help="passes/min over all frames")
     ap.add_argument("--seconds", type=int, default=120, help="placement time per rate")
     ap.add_argument("--drain", type=int, default=300, help="wait for the last version (s)")
+    ap.add_argument("--resident", type=int,
+                    help="the daemon's max_resident_frames (default: the shipped one, 2)")
     ap.add_argument("--lag-src", help="keep the generated passes here (reused if present)")
     ap.add_argument("--json")
     ap.add_argument("--png")
+    ap.add_argument("--baseline", help="a --json of an earlier binary, drawn dotted in the PNG")
+    ap.add_argument("--label", default="", help="this binary's name in the PNG")
+    ap.add_argument("--baseline-label", default="baseline")
+    ap.add_argument("--replot", help="only redraw --png from this --json")
     args = ap.parse_args()
     harness.BINARY = args.binary
     with TempRoot("proden-bench-") as root:
+        if args.replot:
+            with open(args.replot) as f:
+                run = json.load(f)
+            base = None
+            if args.baseline:
+                with open(args.baseline) as f:
+                    base = json.load(f)
+            lag_plot(run["runs"], run["reference"][1], args.png, base, args.label,
+                     args.baseline_label)
+            return
         if args.lag:
             lag(args, root)
             return

@@ -1,7 +1,8 @@
-// Fuzz target: a frame's state file (service/daemon/frame_state.hpp: "PRDNFRS1", the JSON record
-// and its hash, the accumulator blob and its checksum) parsed as the daemon loads it after a
-// restart. Each input is parsed twice: as given (the checksum gates), and with both checksums
-// recomputed so the mutations reach the record's fields and the statistics behind the gates.
+// Fuzz target: a frame's state file (service/daemon/frame_state.hpp: "PRDNFRS3", the accumulator
+// blob and its hashes, then the JSON record and its hash; versions 1 and 2 put the record first)
+// parsed as the daemon loads it after a restart. Each input is parsed twice: as given (the checksum
+// gates), and with both checksums recomputed so the mutations reach the record's fields and the
+// statistics behind the gates.
 //
 // Properties: a state either parses or is refused with an exception (never a crash, never UB);
 // an accepted state holds only finite numbers (record, pass history, statistics) and its digest
@@ -25,9 +26,10 @@ namespace {
 
 // The checksums of the file format (daemon/frame_state.cpp: version 1 "PRDNFRS1" = magic, u64 n,
 // record, u64 record hash, accumulator blob; version 2 "PRDNFRS2" = the same with the blob's
-// length before it and a hash of the whole file after it; the blob ends with its own checksum,
-// pipeline/src/accumulator_state.cpp). LLVMFuzzerInitialize proves them against a real state, so
-// the harness cannot silently stop reaching past the gates if the format changes.
+// length before it and a hash of the whole file after it; version 3 "PRDNFRS3" = magic, u64 m,
+// blob, u64 hash of all before it, record, u64 n, u64 record hash; the blob ends with its own
+// checksum, pipeline/src/accumulator_state.cpp). LLVMFuzzerInitialize proves them against a real
+// state, so the harness cannot silently stop reaching past the gates if the format changes.
 constexpr std::uint64_t kRecordSeed = 0x66726d;
 constexpr std::uint64_t kFileSeed = 0x66726d32;
 constexpr std::uint64_t kBlobSeed = 0x61636373746174;
@@ -46,8 +48,20 @@ bool fix_checksums(std::vector<std::uint8_t>& b) {
   if (b.size() < 16) return false;
   const bool v1 = std::memcmp(b.data(), "PRDNFRS1", 8) == 0;
   const bool v2 = std::memcmp(b.data(), "PRDNFRS2", 8) == 0;
-  if (!v1 && !v2) return false;
+  const bool v3 = std::memcmp(b.data(), "PRDNFRS3", 8) == 0;
+  if (!v1 && !v2 && !v3) return false;
   std::uint64_t n = 0;
+  if (v3) {
+    std::uint64_t m = 0;
+    std::memcpy(&m, b.data() + 8, sizeof m);
+    if (b.size() < 40 || m > b.size() - 40) return false;
+    n = b.size() - 40 - m;
+    fix_blob(b, 16, 16 + m);
+    put64(b, 16 + m, hash_bytes({b.data(), 16 + m}, kFileSeed));
+    put64(b, b.size() - 16, n);
+    put64(b, b.size() - 8, hash_bytes({b.data() + 24 + m, n}, kRecordSeed));
+    return true;
+  }
   std::memcpy(&n, b.data() + 8, sizeof n);
   if (n > b.size() - 16 || b.size() - 16 - n < 8) return false;
   put64(b, 16 + n, hash_bytes({b.data() + 16, n}, kRecordSeed));
@@ -114,10 +128,10 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
   rec.digest = acc.state_digest();
   std::vector<std::uint8_t> bytes = frame_state_bytes(rec, acc);
   FUZZ_CHECK(parse_and_check(bytes));
-  bytes[bytes.size() - 1] ^= 0x5a;
-  std::uint64_t n = 0;
-  std::memcpy(&n, bytes.data() + 8, sizeof n);
-  bytes[16 + n] ^= 0x5a;
+  bytes[bytes.size() - 1] ^= 0x5a;  // the record's hash
+  std::uint64_t m = 0;
+  std::memcpy(&m, bytes.data() + 8, sizeof m);
+  bytes[16 + m] ^= 0x5a;  // the blob's hash
   FUZZ_CHECK(!parse_and_check(bytes));
   FUZZ_CHECK(fix_checksums(bytes) && parse_and_check(bytes));
   return 0;

@@ -33,25 +33,37 @@ void write_file_atomic(const fs::path& path, std::span<const std::uint8_t> data)
   write_file_atomic(path, one);
 }
 
+fs::path temp_path_for(const fs::path& path) {
+  return path.parent_path() / ("." + path.filename().string() + ".tmp" +
+                               std::to_string(::getpid()) + "." + std::to_string(::gettid()));
+}
+
+bool write_all(int fd, std::span<const std::uint8_t> data) {
+  std::size_t done = 0;
+  while (done < data.size()) {
+    const ssize_t n = ::write(fd, data.data() + done, data.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      if (n == 0) errno = EIO;
+      return false;
+    }
+    done += static_cast<std::size_t>(n);
+  }
+  return true;
+}
+
 void write_file_atomic(const fs::path& path,
                        std::span<const std::span<const std::uint8_t>> pieces) {
   const fs::path dir = path.parent_path();
-  fs::path tmp = dir / ("." + path.filename().string() + ".tmp" + std::to_string(::getpid()) + "." +
-                        std::to_string(::gettid()));
+  const fs::path tmp = temp_path_for(path);
   const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) throw std::runtime_error(path.string() + ": cannot create: " + std::strerror(errno));
   for (const auto& data : pieces) {
-    std::size_t done = 0;
-    while (done < data.size()) {
-      const ssize_t n = ::write(fd, data.data() + done, data.size() - done);
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) {
-        const std::string why = std::strerror(errno);
-        ::close(fd);
-        ::unlink(tmp.c_str());
-        throw std::runtime_error(path.string() + ": write failed: " + why);
-      }
-      done += static_cast<std::size_t>(n);
+    if (!write_all(fd, data)) {
+      const std::string why = std::strerror(errno);
+      ::close(fd);
+      ::unlink(tmp.c_str());
+      throw std::runtime_error(path.string() + ": write failed: " + why);
     }
   }
   if (::fsync(fd) != 0 || ::close(fd) != 0) {

@@ -26,6 +26,11 @@ void write_file_atomic(const std::filesystem::path& path,
 void write_file_atomic(const std::filesystem::path& path, const std::string& text);
 // Makes the directory's entries (a rename or creation in it) durable.
 void fsync_dir(const std::filesystem::path& dir);
+// The temp name write_file_atomic writes `path` under (beside it, unique to this thread); the
+// start-up clean-up removes such leftovers.
+std::filesystem::path temp_path_for(const std::filesystem::path& path);
+// Writes all of `data` to `fd`, retrying short writes; false (errno set) on failure.
+bool write_all(int fd, std::span<const std::uint8_t> data);
 
 // Reads a whole file; nullopt when it cannot be opened or read to the end.
 std::optional<std::vector<std::uint8_t>> read_file(const std::filesystem::path& path,

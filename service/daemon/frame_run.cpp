@@ -206,6 +206,10 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
   bool committed = false;
   std::vector<std::uint64_t> dropped_versions;
   try {
+    // The new statistics are written (and made durable) while the estimate and the pipeline
+    // run: only the record, which needs their result, is left for the commit below.
+    std::unique_ptr<FrameStateWriter> state;
+    if (!accepted.empty()) state = store_.begin_frame_save(job_id, frame_no, *acc, *aovs);
     auto t0 = Clock::now();
     const FrameEstimate est = acc->estimate(FrameProcessor::estimate_options(spec.pipeline));
     metrics_.observe("proden_stage_duration_seconds", "estimate", seconds_since(t0));
@@ -243,7 +247,6 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
       rec.inputs = acc->layout().to_string();
       rec.variance_source = std::string(protocol::to_string(est.variance_source));
       rec.low_confidence = est.low_confidence();
-      rec.digest = acc->state_digest();
       rec.ingested.insert(rec.ingested.end(), accepted.begin(), accepted.end());
       rec.estimated_error = protocol::to_json(out.run.estimated_error);
       rec.aovs = json::array();
@@ -260,8 +263,9 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
       }
       dropped_versions = add_version(rec.versions, rec.version, spec.output.history);
       t0 = Clock::now();
+      rec.digest = state->digest();  // waits for the statistics to be written
       // The commit point: statistics and pass identities together, atomically.
-      store_.save_frame(job_id, rec, *acc, *aovs);
+      store_.commit_frame(job_id, *state, rec);
       committed = true;
       metrics_.observe("proden_stage_duration_seconds", "persist", seconds_since(t0));
       hooks_.committed(rec, accepted);

@@ -1,5 +1,10 @@
 #include "daemon/frame_state.hpp"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -16,8 +21,11 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '2'};
+constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '3'};
+constexpr char kMagicV2[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '2'};
 constexpr char kMagicV1[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '1'};
+// Version 3: magic, u64 m, blob, u64 blob hash | record | u64 n, u64 record hash.
+constexpr std::size_t kHeadV3 = sizeof kMagic + 8, kTailV3 = 16;
 constexpr std::uint64_t kFileSeed = 0x66726d32;
 
 std::uint64_t file_hash(std::span<const std::uint8_t> b) {
@@ -128,44 +136,53 @@ FrameRecord frame_record_from_json(const json& j) {
 
 namespace {
 
-// The file in four pieces, in order (see the header for the layout): the head (magic, the record
-// and its hash, the blob's size), the accumulator, the renderer AOVs and the whole-file hash. The
-// pieces are written one after the other rather than copied into one buffer first: a 1080p frame
-// with features holds a few hundred MB of statistics, and a single buffer of the file would
-// double the daemon's peak memory at every commit (bench/results/daemon.md).
-struct StatePieces {
-  std::vector<std::uint8_t> head, accumulator, aovs;
-  std::uint64_t hash = 0;
-};
-
-StatePieces state_pieces(const FrameRecord& record, const FrameAccumulator& frame,
-                         const AovAccumulator& aovs) {
+void check_finite(const FrameRecord& record) {
   for (const auto& [name, v] :
        {std::pair{"spp", record.spp}, {"estimated_mse", record.estimated_mse}}) {
     if (!std::isfinite(v)) {
       throw std::invalid_argument(std::string("refusing to persist a non-finite ") + name);
     }
   }
-  StatePieces p;
-  // The blob: the accumulator, then the renderer AOVs (issue 13); the record says where it splits.
-  p.accumulator = frame.serialize();
-  p.aovs = aovs.serialize();
-  const std::string text = record_text(record, p.accumulator.size());
-  auto put = [&p](const void* data, std::size_t n) {
-    const auto* b = static_cast<const std::uint8_t*>(data);
-    p.head.insert(p.head.end(), b, b + n);
-  };
-  auto put64 = [&put](std::uint64_t v) { put(&v, sizeof v); };
-  p.head.reserve(sizeof kMagic + 24 + text.size());
-  put(kMagic, sizeof kMagic);
-  put64(text.size());
-  put(text.data(), text.size());
-  put64(text_hash(text));
-  put64(p.accumulator.size() + p.aovs.size());
-  ByteHasher h(p.head.size() + p.accumulator.size() + p.aovs.size(), kFileSeed);
-  for (const auto* piece : {&p.head, &p.accumulator, &p.aovs}) h.update(*piece);
-  p.hash = h.finish();
-  return p;
+}
+
+std::span<const std::uint8_t> bytes_of(const void* p, std::size_t n) {
+  return {static_cast<const std::uint8_t*>(p), n};
+}
+
+// The tail of a version 3 file: the record, its size and its hash.
+std::vector<std::uint8_t> record_tail(const FrameRecord& record, std::size_t accumulator_bytes) {
+  const std::string text = record_text(record, accumulator_bytes);
+  const std::uint64_t n = text.size(), h = text_hash(text);
+  std::vector<std::uint8_t> out(text.begin(), text.end());
+  for (const std::uint64_t v : {n, h}) {
+    const auto b = bytes_of(&v, sizeof v);
+    out.insert(out.end(), b.begin(), b.end());
+  }
+  return out;
+}
+
+// The head and blob of a version 3 file, handed to `put` in order (no copy of them into one
+// buffer: a 1080p frame with features holds a few hundred MB of statistics); returns the
+// accumulator's size in the blob.
+template <class Put>
+std::size_t put_statistics(const FrameAccumulator& frame, std::span<const std::uint8_t> aov,
+                           Put&& put) {
+  std::vector<std::uint8_t> acc = frame.serialize();
+  const std::size_t accumulator_bytes = acc.size();
+  const std::uint64_t m = acc.size() + aov.size();
+  ByteHasher h(kHeadV3 + m, kFileSeed);
+  h.update(bytes_of(kMagic, sizeof kMagic));
+  h.update(bytes_of(&m, sizeof m));
+  h.update(acc);
+  h.update(aov);
+  const std::uint64_t blob_hash = h.finish();
+  put(bytes_of(kMagic, sizeof kMagic));
+  put(bytes_of(&m, sizeof m));
+  put(acc);
+  std::vector<std::uint8_t>().swap(acc);  // written: no need to hold it while the rest syncs
+  put(aov);
+  put(bytes_of(&blob_hash, sizeof blob_hash));
+  return accumulator_bytes;
 }
 
 }  // namespace
@@ -173,54 +190,115 @@ StatePieces state_pieces(const FrameRecord& record, const FrameAccumulator& fram
 std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
                                             const FrameAccumulator& frame,
                                             const AovAccumulator& aovs) {
-  const StatePieces p = state_pieces(record, frame, aovs);
+  check_finite(record);
   std::vector<std::uint8_t> out;
-  out.reserve(p.head.size() + p.accumulator.size() + p.aovs.size() + sizeof p.hash);
-  for (const auto* piece : {&p.head, &p.accumulator, &p.aovs}) {
-    out.insert(out.end(), piece->begin(), piece->end());
-  }
-  const auto* h = reinterpret_cast<const std::uint8_t*>(&p.hash);
-  out.insert(out.end(), h, h + sizeof p.hash);
+  const std::size_t accumulator_bytes = put_statistics(
+      frame, aovs.serialize(),
+      [&out](std::span<const std::uint8_t> b) { out.insert(out.end(), b.begin(), b.end()); });
+  const auto tail = record_tail(record, accumulator_bytes);
+  out.insert(out.end(), tail.begin(), tail.end());
   return out;
+}
+
+FrameStateWriter::FrameStateWriter(fs::path path, const FrameAccumulator& frame,
+                                   const AovAccumulator& aovs)
+    : path_(std::move(path)), tmp_(temp_path_for(path_)) {
+  fd_ = ::open(tmp_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd_ < 0) {
+    const std::string why = std::strerror(errno);
+    tmp_.clear();
+    blob_ = std::async(std::launch::deferred, [p = path_, why]() -> Written {
+      throw std::runtime_error(p.string() + ": cannot create: " + why);
+    });
+    return;
+  }
+  // The renderer AOVs are serialised here (a few planes at most): only `frame` is read by the
+  // writing thread.
+  auto write = [this, &frame, aov = aovs.serialize()] {
+    Written w;
+    w.digest = frame.state_digest();
+    w.accumulator_bytes = put_statistics(frame, aov, [this](std::span<const std::uint8_t> b) {
+      if (!write_all(fd_, b)) {
+        throw std::runtime_error(path_.string() + ": write failed: " + std::strerror(errno));
+      }
+    });
+    if (::fdatasync(fd_) != 0) {
+      throw std::runtime_error(path_.string() + ": fdatasync failed: " + std::strerror(errno));
+    }
+    return w;
+  };
+  try {
+    blob_ = std::async(std::launch::async, write);
+  } catch (...) {  // no thread to be had: the destructor does not run, so clean up here
+    ::close(fd_);
+    ::unlink(tmp_.c_str());
+    throw;
+  }
+}
+
+FrameStateWriter::Written FrameStateWriter::wait() {
+  if (blob_.valid()) {
+    try {
+      written_ = blob_.get();
+    } catch (...) {
+      failed_ = std::current_exception();
+    }
+  }
+  if (failed_) std::rethrow_exception(failed_);  // the writing thread's failure, every time
+  return *written_;
+}
+
+std::uint64_t FrameStateWriter::digest() {
+  return wait().digest;
+}
+
+void FrameStateWriter::commit(const FrameRecord& record) {
+  const Written w = wait();
+  if (fd_ < 0) throw std::logic_error(path_.string() + ": committed twice");
+  try {
+    check_finite(record);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(path_.string() + ": " + e.what());
+  }
+  if (record.digest != w.digest) {
+    throw std::logic_error(path_.string() + ": the record's digest is not the statistics'");
+  }
+  const auto tail = record_tail(record, w.accumulator_bytes);
+  if (!write_all(fd_, tail)) {
+    throw std::runtime_error(path_.string() + ": write failed: " + std::strerror(errno));
+  }
+  const int fd = fd_;
+  fd_ = -1;
+  if (::fsync(fd) != 0 || ::close(fd) != 0) {
+    throw std::runtime_error(path_.string() + ": fsync failed: " + std::strerror(errno));
+  }
+  if (::rename(tmp_.c_str(), path_.c_str()) != 0) {
+    throw std::runtime_error(path_.string() + ": rename failed: " + std::strerror(errno));
+  }
+  tmp_.clear();
+  fsync_dir(path_.parent_path());
+}
+
+FrameStateWriter::~FrameStateWriter() {
+  if (blob_.valid()) blob_.wait();  // its failure, if any, is commit()'s to report
+  if (fd_ >= 0) ::close(fd_);
+  if (!tmp_.empty()) ::unlink(tmp_.c_str());
 }
 
 void save_frame_state(const fs::path& path, const FrameRecord& record,
                       const FrameAccumulator& frame, const AovAccumulator& aovs) {
-  try {
-    const StatePieces p = state_pieces(record, frame, aovs);
-    const auto* h = reinterpret_cast<const std::uint8_t*>(&p.hash);
-    const std::span<const std::uint8_t> pieces[] = {
-        p.head, p.accumulator, p.aovs, {h, sizeof p.hash}};
-    write_file_atomic(path, pieces);
-  } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument(path.string() + ": " + e.what());
-  }
+  FrameStateWriter w(path, frame, aovs);
+  w.commit(record);
 }
 
 namespace {
 
-FrameRecord parse_record(std::span<const std::uint8_t> b, const std::string& path,
-                         std::size_t* blob_offset, std::size_t* accumulator_bytes = nullptr) {
-  std::uint64_t n = 0;
-  if (b.size() < sizeof kMagic + 8 || (std::memcmp(b.data(), kMagic, sizeof kMagic) != 0 &&
-                                       std::memcmp(b.data(), kMagicV1, sizeof kMagic) != 0)) {
-    throw std::runtime_error(path + ": not a proden frame state");
-  }
-  std::memcpy(&n, b.data() + sizeof kMagic, sizeof n);
-  if (n > b.size() - sizeof kMagic - 8 || b.size() - sizeof kMagic - 8 - n < 8) {
-    throw std::runtime_error(path + ": truncated frame state");
-  }
-  std::string text(reinterpret_cast<const char*>(b.data() + sizeof kMagic + 8), n);
-  std::uint64_t h = 0;
-  std::memcpy(&h, b.data() + sizeof kMagic + 8 + n, sizeof h);
-  if (h != text_hash(text)) throw std::runtime_error(path + ": corrupt frame state record");
-  if (blob_offset) *blob_offset = sizeof kMagic + 16 + n;
+FrameRecord parse_record_text(const std::string& text, const std::string& path,
+                              std::optional<std::size_t>* accumulator_bytes) {
   try {
     const json j = json::parse(text);
-    if (accumulator_bytes) {
-      *accumulator_bytes = j.contains("accumulator_bytes")
-                               ? j.at("accumulator_bytes").get<std::size_t>()
-                               : b.size() - (sizeof kMagic + 16 + n);
+    if (accumulator_bytes && j.contains("accumulator_bytes")) {
+      *accumulator_bytes = j.at("accumulator_bytes").get<std::size_t>();
     }
     return frame_record_from_json(j);
   } catch (const std::exception& e) {  // json::exception, or a number out of range
@@ -228,53 +306,141 @@ FrameRecord parse_record(std::span<const std::uint8_t> b, const std::string& pat
   }
 }
 
+std::uint64_t get64(std::span<const std::uint8_t> b, std::size_t at) {
+  std::uint64_t v = 0;
+  std::memcpy(&v, b.data() + at, sizeof v);
+  return v;
+}
+
+bool has_magic(std::span<const std::uint8_t> b, const char (&magic)[8]) {
+  return b.size() >= sizeof magic && std::memcmp(b.data(), magic, sizeof magic) == 0;
+}
+
+// Version 3, given the whole file or (blob == nullptr) its first kHeadV3 bytes and its last
+// kTailV3 + n bytes: the record; with `blob`, also the blob, checked against its hash.
+FrameRecord parse_v3(std::span<const std::uint8_t> all, const std::string& path,
+                     std::span<const std::uint8_t>* blob, std::size_t* accumulator_bytes) {
+  if (all.size() < kHeadV3 + 8 + kTailV3)
+    throw std::runtime_error(path + ": truncated frame state");
+  const std::uint64_t m = get64(all, sizeof kMagic);
+  const std::uint64_t n = get64(all, all.size() - kTailV3);
+  if (m > all.size() - kHeadV3 - 8 - kTailV3 || n != all.size() - kHeadV3 - 8 - kTailV3 - m) {
+    throw std::runtime_error(path + ": inconsistent frame state");
+  }
+  const std::size_t text_at = kHeadV3 + m + 8;
+  std::string text(reinterpret_cast<const char*>(all.data() + text_at), n);
+  if (get64(all, all.size() - 8) != text_hash(text)) {
+    throw std::runtime_error(path + ": corrupt frame state record");
+  }
+  if (blob) {
+    if (get64(all, kHeadV3 + m) != file_hash(all.first(kHeadV3 + m))) {
+      throw std::runtime_error(path + ": frame state checksum mismatch");
+    }
+    *blob = all.subspan(kHeadV3, m);
+  }
+  std::optional<std::size_t> acc_bytes;
+  FrameRecord r = parse_record_text(text, path, &acc_bytes);
+  if (!acc_bytes || *acc_bytes > m) throw std::runtime_error(path + ": inconsistent frame state");
+  if (accumulator_bytes) *accumulator_bytes = *acc_bytes;
+  return r;
+}
+
+// Versions 1 and 2: the record comes first.
+FrameRecord parse_record(std::span<const std::uint8_t> b, const std::string& path,
+                         std::size_t* blob_offset, std::optional<std::size_t>* accumulator_bytes) {
+  if (!has_magic(b, kMagicV2) && !has_magic(b, kMagicV1)) {
+    throw std::runtime_error(path + ": not a proden frame state");
+  }
+  if (b.size() < sizeof kMagic + 8) throw std::runtime_error(path + ": truncated frame state");
+  const std::uint64_t n = get64(b, sizeof kMagic);
+  if (n > b.size() - sizeof kMagic - 8 || b.size() - sizeof kMagic - 8 - n < 8) {
+    throw std::runtime_error(path + ": truncated frame state");
+  }
+  std::string text(reinterpret_cast<const char*>(b.data() + sizeof kMagic + 8), n);
+  if (get64(b, sizeof kMagic + 8 + n) != text_hash(text)) {
+    throw std::runtime_error(path + ": corrupt frame state record");
+  }
+  if (blob_offset) *blob_offset = sizeof kMagic + 16 + n;
+  return parse_record_text(text, path, accumulator_bytes);
+}
+
+void read_at(std::ifstream& in, std::uint64_t at, std::span<std::uint8_t> out,
+             const std::string& path) {
+  if (!in.seekg(static_cast<std::streamoff>(at)) ||
+      !in.read(reinterpret_cast<char*>(out.data()), static_cast<std::streamsize>(out.size()))) {
+    throw std::runtime_error(path + ": truncated frame state");
+  }
+}
+
 }  // namespace
 
 FrameRecord load_frame_record(const fs::path& path) {
+  const std::string name = path.string();
   std::ifstream in(path, std::ios::binary);
-  if (!in) throw std::runtime_error(path.string() + ": cannot open");
-  std::vector<std::uint8_t> head(sizeof kMagic + 8);
-  if (!in.read(reinterpret_cast<char*>(head.data()), static_cast<std::streamsize>(head.size()))) {
-    throw std::runtime_error(path.string() + ": truncated frame state");
+  if (!in) throw std::runtime_error(name + ": cannot open");
+  std::error_code ec;
+  const std::uint64_t size = fs::file_size(path, ec);
+  if (ec) throw std::runtime_error(name + ": cannot open");
+  std::vector<std::uint8_t> head(kHeadV3);
+  read_at(in, 0, head, name);
+  constexpr std::uint64_t kMaxRecord = 64u << 20;
+  if (has_magic(head, kMagic)) {
+    // Version 3: the head, then the record read from the end, laid out as parse_v3 reads a file
+    // whose blob is left out (its size is the head's m).
+    if (size < kHeadV3 + 8 + kTailV3) throw std::runtime_error(name + ": truncated frame state");
+    std::uint8_t tail[kTailV3];
+    read_at(in, size - kTailV3, tail, name);
+    const std::uint64_t n = get64(tail, 0), m = get64(head, sizeof kMagic);
+    if (n > kMaxRecord || n > size - kHeadV3 - 8 - kTailV3 ||
+        m != size - kHeadV3 - 8 - kTailV3 - n) {
+      throw std::runtime_error(name + ": inconsistent frame state");
+    }
+    std::vector<std::uint8_t> text(n);
+    read_at(in, size - kTailV3 - n, text, name);
+    std::string s(text.begin(), text.end());
+    if (get64(tail, 8) != text_hash(s))
+      throw std::runtime_error(name + ": corrupt frame state record");
+    std::optional<std::size_t> acc_bytes;
+    FrameRecord r = parse_record_text(s, name, &acc_bytes);
+    if (!acc_bytes || *acc_bytes > m) throw std::runtime_error(name + ": inconsistent frame state");
+    return r;
   }
-  std::uint64_t n = 0;
-  std::memcpy(&n, head.data() + sizeof kMagic, sizeof n);
-  if (n > (64u << 20)) throw std::runtime_error(path.string() + ": not a proden frame state");
+  const std::uint64_t n = get64(head, sizeof kMagic);
+  if (n > kMaxRecord) throw std::runtime_error(name + ": not a proden frame state");
   head.resize(head.size() + n + 8);
-  if (!in.read(reinterpret_cast<char*>(head.data() + sizeof kMagic + 8),
-               static_cast<std::streamsize>(n + 8))) {
-    throw std::runtime_error(path.string() + ": truncated frame state");
-  }
-  return parse_record(head, path.string(), nullptr);
+  read_at(in, kHeadV3, std::span(head).subspan(kHeadV3), name);
+  return parse_record(head, name, nullptr, nullptr);
 }
 
 FrameAccumulator parse_frame_state(std::span<const std::uint8_t> all, const std::string& path,
                                    FrameRecord* record, AovAccumulator* aovs) {
   std::span<const std::uint8_t> blob;
-  if (all.size() >= sizeof kMagic && std::memcmp(all.data(), kMagic, sizeof kMagic) == 0) {
-    // Version 2: the whole file's hash first, then the parts.
-    std::uint64_t h = 0;
-    if (all.size() < sizeof kMagic + 32) {
-      throw std::runtime_error(path + ": truncated frame state");
-    }
-    std::memcpy(&h, all.data() + all.size() - 8, sizeof h);
-    if (h != file_hash(all.first(all.size() - 8))) {
-      throw std::runtime_error(path + ": frame state checksum mismatch");
-    }
-  }
-  std::size_t offset = 0, acc_bytes = 0;
-  FrameRecord r = parse_record(all, path, &offset, &acc_bytes);
-  if (std::memcmp(all.data(), kMagic, sizeof kMagic) == 0) {
-    std::uint64_t m = 0;
-    if (offset + 16 > all.size()) throw std::runtime_error(path + ": truncated");
-    std::memcpy(&m, all.data() + offset, sizeof m);
-    if (m != all.size() - offset - 16) {
-      throw std::runtime_error(path + ": inconsistent frame state");
-    }
-    blob = all.subspan(offset + 8, m);
-    if (acc_bytes == all.size() - (offset)) acc_bytes = blob.size();  // no accumulator_bytes key
+  std::size_t acc_bytes = 0;
+  FrameRecord r;
+  if (has_magic(all, kMagic)) {
+    r = parse_v3(all, path, &blob, &acc_bytes);
   } else {
-    blob = all.subspan(offset);
+    if (has_magic(all, kMagicV2)) {
+      // Version 2: the whole file's hash first, then the parts.
+      if (all.size() < sizeof kMagic + 32)
+        throw std::runtime_error(path + ": truncated frame state");
+      if (get64(all, all.size() - 8) != file_hash(all.first(all.size() - 8))) {
+        throw std::runtime_error(path + ": frame state checksum mismatch");
+      }
+    }
+    std::size_t offset = 0;
+    std::optional<std::size_t> acc_key;
+    r = parse_record(all, path, &offset, &acc_key);
+    if (has_magic(all, kMagicV2)) {
+      if (offset + 16 > all.size()) throw std::runtime_error(path + ": truncated");
+      const std::uint64_t m = get64(all, offset);
+      if (m != all.size() - offset - 16)
+        throw std::runtime_error(path + ": inconsistent frame state");
+      blob = all.subspan(offset + 8, m);
+    } else {
+      blob = all.subspan(offset);
+    }
+    acc_bytes = acc_key.value_or(blob.size());  // no accumulator_bytes key: no AOVs
   }
   if (acc_bytes > blob.size()) throw std::runtime_error(path + ": truncated frame state");
   FrameAccumulator acc = FrameAccumulator::deserialize(blob.first(acc_bytes));

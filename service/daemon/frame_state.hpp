@@ -2,17 +2,24 @@
 // contain, in ONE file written atomically (temp + fsync + rename), so that after a crash a pass
 // is either in both or in neither: counted exactly once.
 //
-// File (version 2): "PRDNFRS2", u64 n, n bytes of JSON record, u64 hash(JSON), u64 m, m bytes of
-// blob: the accumulator (FrameAccumulator::serialize) then the renderer AOVs
-// (AovAccumulator::serialize; the record's "accumulator_bytes" says where they start; records
-// without it have no AOVs), u64 hash of every byte before it: one flipped
-// byte anywhere is detected. The JSON part can be read without the rest (start-up). Version 1
-// files ("PRDNFRS1": no m, no whole-file hash; the blob carries its own checksum) still load.
-// Non-finite numbers are never written (JSON would turn them into null).
+// File (version 3): "PRDNFRS3", u64 m, m bytes of blob: the accumulator
+// (FrameAccumulator::serialize) then the renderer AOVs (AovAccumulator::serialize; the record's
+// "accumulator_bytes" says where they start), u64 hash of every byte before it; then n bytes of
+// JSON record, u64 n, u64 hash(JSON). The statistics come first so that they can be written and
+// made durable while the pipeline runs, before the record (which holds the version's estimate)
+// is known (FrameStateWriter). Every byte is covered: the two hashes, and the sizes, which must
+// add up to the file's. The record can be read from the end without the rest (start-up).
+// Version 2 files ("PRDNFRS2", u64 n, n bytes of JSON, u64 hash(JSON), u64 m, m bytes of blob,
+// u64 hash of every byte before it) and version 1 ("PRDNFRS1": no m, no whole-file hash; the
+// blob carries its own checksum) still load. Non-finite numbers are never written (JSON would
+// turn them into null).
 #pragma once
 
 #include <cstdint>
+#include <exception>
 #include <filesystem>
+#include <future>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
@@ -51,6 +58,40 @@ struct FrameRecord {
 
 nlohmann::json to_json(const FrameRecord& r);
 FrameRecord frame_record_from_json(const nlohmann::json& j);
+
+// A state file written in two steps. The constructor starts writing the statistics to a temp
+// file beside `path` on a thread of its own and makes them durable (fdatasync); commit() adds the
+// record, syncs it and renames the file into place. `frame` is read by that thread: it must
+// outlive the writer and not change meanwhile. Destroyed without a commit, it waits for the
+// thread and removes the temp file.
+class FrameStateWriter {
+ public:
+  FrameStateWriter(std::filesystem::path path, const FrameAccumulator& frame,
+                   const AovAccumulator& aovs);
+  FrameStateWriter(std::filesystem::path, FrameAccumulator&&, const AovAccumulator&) = delete;
+  FrameStateWriter(const FrameStateWriter&) = delete;
+  FrameStateWriter& operator=(const FrameStateWriter&) = delete;
+  ~FrameStateWriter();
+  // The digest of the statistics written (FrameAccumulator::state_digest), once they are.
+  std::uint64_t digest();
+  // Waits for the statistics, appends `record` (whose digest must be digest()), fsyncs and
+  // renames over `path`, then syncs the directory. Throws (naming the file) on any failure; the
+  // temp file is then removed and `path` is untouched.
+  void commit(const FrameRecord& record);
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  struct Written {
+    std::uint64_t digest = 0;
+    std::size_t accumulator_bytes = 0;
+  };
+  Written wait();
+  std::filesystem::path path_, tmp_;
+  int fd_ = -1;
+  std::future<Written> blob_;
+  std::optional<Written> written_;
+  std::exception_ptr failed_;
+};
 
 void save_frame_state(const std::filesystem::path& path, const FrameRecord& record,
                       const FrameAccumulator& frame, const AovAccumulator& aovs = {});

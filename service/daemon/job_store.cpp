@@ -253,13 +253,20 @@ std::optional<JobStore::LoadedJob> JobStore::load_job(
 
 // ---- frames ----------------------------------------------------------------------------------
 
-void JobStore::save_frame(const std::string& id, const FrameRecord& record,
-                          const FrameAccumulator& acc, const AovAccumulator& aovs) {
+std::unique_ptr<FrameStateWriter> JobStore::begin_frame_save(const std::string& id, long frame,
+                                                             const FrameAccumulator& acc,
+                                                             const AovAccumulator& aovs) {
+  return std::make_unique<FrameStateWriter>(state_path(id, frame), acc, aovs);
+}
+
+void JobStore::commit_frame(const std::string& id, FrameStateWriter& writer,
+                            const FrameRecord& record) {
   const fs::path p = state_path(id, record.frame);
+  if (writer.path() != p) throw std::logic_error(p.string() + ": a writer for another frame");
   fault_point("state", p);
   if (fs::exists(p)) {
     // Keep the current state as the last good one: a hard link (no window without a state),
-    // renamed over the previous one; write_file_atomic's directory sync makes both durable.
+    // renamed over the previous one; the commit's directory sync makes both durable.
     const fs::path tmp = p.parent_path() / ("." + std::to_string(record.frame) + ".prev.tmp" +
                                             std::to_string(::getpid()));
     std::error_code ec;
@@ -267,7 +274,13 @@ void JobStore::save_frame(const std::string& id, const FrameRecord& record,
     fs::create_hard_link(p, tmp);
     fs::rename(tmp, prev_path(id, record.frame));
   }
-  save_frame_state(p, record, acc, aovs);
+  writer.commit(record);
+}
+
+void JobStore::save_frame(const std::string& id, const FrameRecord& record,
+                          const FrameAccumulator& acc, const AovAccumulator& aovs) {
+  const auto writer = begin_frame_save(id, record.frame, acc, aovs);
+  commit_frame(id, *writer, record);
 }
 
 JobStore::LoadedState JobStore::load_frame(const std::string& id, long frame) const {

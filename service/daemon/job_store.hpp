@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -81,8 +82,14 @@ class JobStore {
       const std::function<void(long frame, const std::string& message)>& damaged);
 
   // ---- frames ----
-  // The commit point of a frame run: keeps the current state as <n>.prev, then writes the new
-  // one atomically.
+  // The commit point of a frame run, in two steps: begin_frame_save starts writing the
+  // statistics (a frame run does so before its pipeline, which they overlap); commit_frame keeps
+  // the current state as <n>.prev, then commits the new one with its record, atomically.
+  // save_frame does both at once.
+  std::unique_ptr<FrameStateWriter> begin_frame_save(const std::string& id, long frame,
+                                                     const FrameAccumulator& acc,
+                                                     const AovAccumulator& aovs);
+  void commit_frame(const std::string& id, FrameStateWriter& writer, const FrameRecord& record);
   void save_frame(const std::string& id, const FrameRecord& record, const FrameAccumulator& acc,
                   const AovAccumulator& aovs = {});
   struct LoadedState {

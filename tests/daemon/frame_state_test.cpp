@@ -1,12 +1,17 @@
-// The frame-state file's record: the pass identities it lists (written as text one by one, see
-// daemon/frame_state.cpp) read back as the JSON form of the record says, for any strings.
+// The frame-state file (daemon/frame_state.hpp): the pass identities its record lists (written as
+// text one by one) read back as the record's JSON form says, for any strings; format 3's layout,
+// its two-step writer, and the states of formats 1 and 2 still loading.
 #include <catch2/catch.hpp>
 
+#include <cstring>
+#include <filesystem>
+#include <fstream>
 #include <string>
 
 #include "daemon/files.hpp"
 #include "daemon/frame_state.hpp"
 #include "daemon_support.hpp"
+#include "proden/hash.hpp"
 
 using namespace proden;
 using namespace proden::daemon;
@@ -104,4 +109,162 @@ TEST_CASE("Frame state: the file written in pieces holds exactly frame_state_byt
   FrameRecord back;
   load_frame_accumulator(path, &back);
   CHECK(back.ingested.size() == 2);
+}
+
+TEST_CASE("Frame state: version 3 puts the statistics first and covers every byte",
+          "[daemon][state]") {
+  FrameAccumulator acc;
+  acc.add(test::make_pass(6, 4, 2.0, 3), "a");
+  acc.add(test::make_pass(6, 4, 2.0, 4), "b");
+  const FrameRecord r = record_with({{"a", "/r/a.exr", 10, 11, 12}}, acc);
+  const auto bytes = frame_state_bytes(r, acc);
+  REQUIRE(std::string(bytes.begin(), bytes.begin() + 8) == "PRDNFRS3");
+  std::uint64_t m = 0, n = 0;
+  std::memcpy(&m, bytes.data() + 8, 8);
+  std::memcpy(&n, bytes.data() + bytes.size() - 16, 8);
+  CHECK(m == acc.serialize().size());  // no AOVs: the blob is the accumulator
+  CHECK(16 + m + 8 + n + 16 == bytes.size());
+  const std::string text(bytes.begin() + static_cast<std::ptrdiff_t>(24 + m),
+                         bytes.begin() + static_cast<std::ptrdiff_t>(24 + m + n));
+  CHECK(json::parse(text).at("frame") == 7);
+  FrameRecord back;
+  CHECK(parse_frame_state(bytes, "7.state", &back).state_digest() == acc.state_digest());
+  // One flipped bit anywhere (head, statistics, their hash, record, sizes, record hash) is
+  // refused, never read as another state.
+  int refused = 0;
+  for (std::size_t i = 0; i < bytes.size(); ++i) {
+    auto bad = bytes;
+    bad[i] ^= 0x10;
+    try {
+      parse_frame_state(bad, "7.state", nullptr);
+    } catch (const std::exception&) {
+      ++refused;
+    }
+  }
+  CHECK(refused == static_cast<int>(bytes.size()));
+}
+
+TEST_CASE("Frame state: the record of a version 3 file is read from its end", "[daemon][state]") {
+  test::TempDir t;
+  FrameAccumulator acc;
+  acc.add(test::make_pass(16, 8, 2.0, 3), "a");
+  const FrameRecord r = record_with({{"a", "/r/a.exr", 10, 11, 12}}, acc);
+  const auto path = t.path() / "7.state";
+  save_frame_state(path, r, acc);
+  CHECK(load_frame_record(path).ingested.size() == 1);
+  test::flip_byte(path, -20);  // inside the record
+  CHECK_THROWS(load_frame_record(path));
+}
+
+TEST_CASE("Frame state: states written in format 2 still load, and are rewritten as 3",
+          "[daemon][state]") {
+  // Format 2 as the daemons before format 3 wrote it (daemon/frame_state.hpp): "PRDNFRS2", u64 n,
+  // the record, u64 hash(record), u64 m, the blob, u64 hash of all before it. (The committed
+  // format-2 fuzz seeds predate the accumulator's current digest and are refused as damaged.)
+  test::TempDir t;
+  FrameAccumulator acc;
+  acc.add(test::make_pass(6, 4, 2.0, 3), "a");
+  acc.add(test::make_pass(6, 4, 2.0, 4), "b");
+  const FrameRecord r =
+      record_with({{"a", "/r/a.exr", 10, 11, 12}, {"b", "/r/b.exr", 1, 2, 3}}, acc);
+  const std::vector<std::uint8_t> blob = acc.serialize();
+  json head = to_json(r);
+  head["accumulator_bytes"] = blob.size();
+  const std::string text = head.dump();
+  std::vector<std::uint8_t> v2;
+  auto put = [&v2](const void* p, std::size_t n) {
+    v2.insert(v2.end(), static_cast<const std::uint8_t*>(p),
+              static_cast<const std::uint8_t*>(p) + n);
+  };
+  auto put64 = [&put](std::uint64_t v) { put(&v, 8); };
+  put("PRDNFRS2", 8);
+  put64(text.size());
+  put(text.data(), text.size());
+  put64(hash_bytes({reinterpret_cast<const unsigned char*>(text.data()), text.size()}, 0x66726d));
+  put64(blob.size());
+  put(blob.data(), blob.size());
+  put64(hash_bytes({v2.data(), v2.size()}, 0x66726d32));
+  const auto path = t.path() / "7.state";
+  {
+    std::ofstream f(path, std::ios::binary);
+    f.write(reinterpret_cast<const char*>(v2.data()), static_cast<std::streamsize>(v2.size()));
+  }
+  CHECK(load_frame_record(path).ingested.size() == 2);
+  FrameRecord rec;
+  const FrameAccumulator back = load_frame_accumulator(path, &rec);
+  CHECK(back.serialize() == blob);
+  CHECK(to_json(rec).dump() == to_json(r).dump());
+  // Rewritten (the frame's next commit), it is format 3 and reads back the same.
+  save_frame_state(path, rec, back);
+  const auto again = read_file(path);
+  REQUIRE(again);
+  CHECK(std::string(again->begin(), again->begin() + 8) == "PRDNFRS3");
+  FrameRecord rec2;
+  CHECK(load_frame_accumulator(path, &rec2).serialize() == blob);
+  CHECK(to_json(rec2).dump() == to_json(r).dump());
+  // A flipped byte in a format-2 file is still refused.
+  v2[v2.size() / 2] ^= 0x10;
+  CHECK_THROWS(parse_frame_state(v2, "7.state", nullptr));
+}
+
+TEST_CASE("Frame state: the statistics are durable before the commit, the file only after it",
+          "[daemon][state]") {
+  test::TempDir t;
+  FrameAccumulator acc;
+  acc.add(test::make_pass(16, 8, 2.0, 3), "a");
+  FrameRecord r = record_with({{"a", "/r/a.exr", 10, 11, 12}}, acc);
+  const auto path = t.path() / "7.state";
+  auto temps = [&t] {
+    int n = 0;
+    for (const auto& e : std::filesystem::directory_iterator(t.path())) {
+      n += e.path().filename().string().find(".tmp") != std::string::npos;
+    }
+    return n;
+  };
+  {
+    FrameStateWriter w(path, acc, {});
+    CHECK(w.digest() == acc.state_digest());  // the statistics are written by now
+    CHECK(temps() == 1);
+    CHECK_FALSE(std::filesystem::exists(path));
+    r.digest = w.digest();
+    w.commit(r);
+    CHECK(temps() == 0);
+  }
+  CHECK(load_frame_record(path).version == r.version);
+  // Abandoned (the pipeline failed, or the passes were refused): no temp file is left and the
+  // committed state is untouched.
+  const auto before = read_file(path);
+  acc.add(test::make_pass(16, 8, 2.0, 4), "b");
+  {
+    FrameStateWriter w(path, acc, {});
+    CHECK(w.digest() == acc.state_digest());
+  }
+  CHECK(temps() == 0);
+  CHECK(read_file(path) == before);
+  // A record that does not describe the statistics written is refused, not committed.
+  {
+    FrameStateWriter w(path, acc, {});
+    CHECK_THROWS(w.commit(r));  // r.digest is the one-pass state's
+  }
+  CHECK(read_file(path) == before);
+  CHECK(temps() == 0);
+}
+
+TEST_CASE("Frame state: format-3 files a real daemon wrote load, and rewrite to the same bytes",
+          "[daemon][state]") {
+  // The fuzz seeds written by `proden serve` from cropped sample passes (fuzz/README.md).
+  for (const char* name : {"v3_cycles_6x4_2passes.state", "v3_povray_5x3_2passes.state"}) {
+    INFO(name);
+    const auto path =
+        std::filesystem::path(PRODEN_SOURCE_DIR) / "fuzz" / "corpus" / "frame_state" / name;
+    const auto bytes = read_file(path);
+    REQUIRE(bytes);
+    FrameRecord rec;
+    AovAccumulator aovs;
+    const FrameAccumulator acc = parse_frame_state(*bytes, name, &rec, &aovs);
+    CHECK(rec.passes == 2);
+    CHECK(acc.passes() == 2);
+    CHECK(load_frame_record(path).digest == rec.digest);
+    CHECK(frame_state_bytes(rec, acc, aovs) == *bytes);
+  }
 }

@@ -224,12 +224,12 @@ TEST_CASE("Regression 11: a flipped byte in the statistics does not block the fr
   const auto version = rig.engine->frame(job.id, 1).version;
   const fs::path state = rig.t.path() / "state" / "jobs" / job.id / "frames" / "1.state";
   SECTION("damage in the statistics, found when the frame next runs") {
-    rig.restart();                 // drop the resident state: the next run reads the file
-    test::flip_byte(state, -200);  // inside the accumulated statistics
+    rig.restart();                // drop the resident state: the next run reads the file
+    test::flip_byte(state, 100);  // inside the accumulated statistics (format 3 starts with them)
   }
   SECTION("damage in the record, found at start-up") {
     rig.engine->stop();
-    test::flip_byte(state, 40);  // inside the JSON record
+    test::flip_byte(state, -40);  // inside the JSON record (format 3 ends with it)
     rig.restart();
   }
   rig.engine->upload(job.id, "1", "c", rig.pass_bytes(3));
