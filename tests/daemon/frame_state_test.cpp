@@ -31,6 +31,14 @@ FrameRecord record_with(const std::vector<protocol::PassIdentity>& ids,
   return r;
 }
 
+// A frame of two passes "a" and "b".
+FrameAccumulator two_passes(int width, int height) {
+  FrameAccumulator acc;
+  acc.add(test::make_pass(width, height, 2.0, 3), "a");
+  acc.add(test::make_pass(width, height, 2.0, 4), "b");
+  return acc;
+}
+
 }  // namespace
 
 TEST_CASE("Frame state: every pass identity reads back as the record's JSON form says",
@@ -96,9 +104,7 @@ TEST_CASE("Frame state: a record without passes still reads back", "[daemon][sta
 TEST_CASE("Frame state: the file written in pieces holds exactly frame_state_bytes",
           "[daemon][state]") {
   test::TempDir t;
-  FrameAccumulator acc;
-  acc.add(test::make_pass(16, 8, 2.0, 3), "a");
-  acc.add(test::make_pass(16, 8, 2.0, 4), "b");
+  const FrameAccumulator acc = two_passes(16, 8);
   const FrameRecord r =
       record_with({{"a", "/r/a.exr", 10, 11, 12}, {"b", "/r/b.exr", 20, 21, 22}}, acc);
   const auto path = t.path() / "7.state";
@@ -113,9 +119,7 @@ TEST_CASE("Frame state: the file written in pieces holds exactly frame_state_byt
 
 TEST_CASE("Frame state: version 3 puts the statistics first and covers every byte",
           "[daemon][state]") {
-  FrameAccumulator acc;
-  acc.add(test::make_pass(6, 4, 2.0, 3), "a");
-  acc.add(test::make_pass(6, 4, 2.0, 4), "b");
+  const FrameAccumulator acc = two_passes(6, 4);
   const FrameRecord r = record_with({{"a", "/r/a.exr", 10, 11, 12}}, acc);
   const auto bytes = frame_state_bytes(r, acc);
   REQUIRE(std::string(bytes.begin(), bytes.begin() + 8) == "PRDNFRS3");
@@ -162,9 +166,7 @@ TEST_CASE("Frame state: states written in format 2 still load, and are rewritten
   // the record, u64 hash(record), u64 m, the blob, u64 hash of all before it. (The committed
   // format-2 fuzz seeds predate the accumulator's current digest and are refused as damaged.)
   test::TempDir t;
-  FrameAccumulator acc;
-  acc.add(test::make_pass(6, 4, 2.0, 3), "a");
-  acc.add(test::make_pass(6, 4, 2.0, 4), "b");
+  const FrameAccumulator acc = two_passes(6, 4);
   const FrameRecord r =
       record_with({{"a", "/r/a.exr", 10, 11, 12}, {"b", "/r/b.exr", 1, 2, 3}}, acc);
   const std::vector<std::uint8_t> blob = acc.serialize();
