@@ -316,32 +316,42 @@ bool has_magic(std::span<const std::uint8_t> b, const char (&magic)[8]) {
   return b.size() >= sizeof magic && std::memcmp(b.data(), magic, sizeof magic) == 0;
 }
 
-// Version 3, given the whole file or (blob == nullptr) its first kHeadV3 bytes and its last
-// kTailV3 + n bytes: the record; with `blob`, also the blob, checked against its hash.
-FrameRecord parse_v3(std::span<const std::uint8_t> all, const std::string& path,
-                     std::span<const std::uint8_t>* blob, std::size_t* accumulator_bytes) {
-  if (all.size() < kHeadV3 + 8 + kTailV3)
-    throw std::runtime_error(path + ": truncated frame state");
-  const std::uint64_t m = get64(all, sizeof kMagic);
-  const std::uint64_t n = get64(all, all.size() - kTailV3);
-  if (m > all.size() - kHeadV3 - 8 - kTailV3 || n != all.size() - kHeadV3 - 8 - kTailV3 - m) {
+// Version 3's sizes: m (the head's), n (the tail's) and the file's must add up.
+void check_v3_sizes(std::uint64_t size, std::uint64_t m, std::uint64_t n, const std::string& path) {
+  if (size < kHeadV3 + 8 + kTailV3) throw std::runtime_error(path + ": truncated frame state");
+  if (m > size - kHeadV3 - 8 - kTailV3 || n != size - kHeadV3 - 8 - kTailV3 - m) {
     throw std::runtime_error(path + ": inconsistent frame state");
   }
-  const std::size_t text_at = kHeadV3 + m + 8;
-  std::string text(reinterpret_cast<const char*>(all.data() + text_at), n);
-  if (get64(all, all.size() - 8) != text_hash(text)) {
+}
+
+// Version 3's record from the file's last n + kTailV3 bytes (sizes checked), for a blob of m.
+FrameRecord v3_record(std::span<const std::uint8_t> end, std::uint64_t m, const std::string& path,
+                      std::size_t* accumulator_bytes) {
+  const std::size_t n = end.size() - kTailV3;
+  std::string text(reinterpret_cast<const char*>(end.data()), n);
+  if (get64(end, end.size() - 8) != text_hash(text)) {
     throw std::runtime_error(path + ": corrupt frame state record");
-  }
-  if (blob) {
-    if (get64(all, kHeadV3 + m) != file_hash(all.first(kHeadV3 + m))) {
-      throw std::runtime_error(path + ": frame state checksum mismatch");
-    }
-    *blob = all.subspan(kHeadV3, m);
   }
   std::optional<std::size_t> acc_bytes;
   FrameRecord r = parse_record_text(text, path, &acc_bytes);
   if (!acc_bytes || *acc_bytes > m) throw std::runtime_error(path + ": inconsistent frame state");
   if (accumulator_bytes) *accumulator_bytes = *acc_bytes;
+  return r;
+}
+
+// Version 3, the whole file: the record, and the blob checked against its hash.
+FrameRecord parse_v3(std::span<const std::uint8_t> all, const std::string& path,
+                     std::span<const std::uint8_t>* blob, std::size_t* accumulator_bytes) {
+  if (all.size() < kHeadV3 + 8 + kTailV3) {
+    throw std::runtime_error(path + ": truncated frame state");
+  }
+  const std::uint64_t m = get64(all, sizeof kMagic), n = get64(all, all.size() - kTailV3);
+  check_v3_sizes(all.size(), m, n, path);
+  FrameRecord r = v3_record(all.last(n + kTailV3), m, path, accumulator_bytes);
+  if (get64(all, kHeadV3 + m) != file_hash(all.first(kHeadV3 + m))) {
+    throw std::runtime_error(path + ": frame state checksum mismatch");
+  }
+  *blob = all.subspan(kHeadV3, m);
   return r;
 }
 
@@ -384,26 +394,16 @@ FrameRecord load_frame_record(const fs::path& path) {
   std::vector<std::uint8_t> head(kHeadV3);
   read_at(in, 0, head, name);
   constexpr std::uint64_t kMaxRecord = 64u << 20;
-  if (has_magic(head, kMagic)) {
-    // Version 3: the head, then the record read from the end, laid out as parse_v3 reads a file
-    // whose blob is left out (its size is the head's m).
+  if (has_magic(head, kMagic)) {  // version 3: the record is read from the end
     if (size < kHeadV3 + 8 + kTailV3) throw std::runtime_error(name + ": truncated frame state");
     std::uint8_t tail[kTailV3];
     read_at(in, size - kTailV3, tail, name);
     const std::uint64_t n = get64(tail, 0), m = get64(head, sizeof kMagic);
-    if (n > kMaxRecord || n > size - kHeadV3 - 8 - kTailV3 ||
-        m != size - kHeadV3 - 8 - kTailV3 - n) {
-      throw std::runtime_error(name + ": inconsistent frame state");
-    }
-    std::vector<std::uint8_t> text(n);
-    read_at(in, size - kTailV3 - n, text, name);
-    std::string s(text.begin(), text.end());
-    if (get64(tail, 8) != text_hash(s))
-      throw std::runtime_error(name + ": corrupt frame state record");
-    std::optional<std::size_t> acc_bytes;
-    FrameRecord r = parse_record_text(s, name, &acc_bytes);
-    if (!acc_bytes || *acc_bytes > m) throw std::runtime_error(name + ": inconsistent frame state");
-    return r;
+    if (n > kMaxRecord) throw std::runtime_error(name + ": not a proden frame state");
+    check_v3_sizes(size, m, n, name);
+    std::vector<std::uint8_t> end(n + kTailV3);
+    read_at(in, size - end.size(), end, name);
+    return v3_record(end, m, name, nullptr);
   }
   const std::uint64_t n = get64(head, sizeof kMagic);
   if (n > kMaxRecord) throw std::runtime_error(name + ": not a proden frame state");
