@@ -75,8 +75,8 @@ class FrameStateWriter {
   // The digest of the statistics written (FrameAccumulator::state_digest), once they are.
   std::uint64_t digest();
   // Waits for the statistics, appends `record` (whose digest must be digest()), fsyncs and
-  // renames over `path`, then syncs the directory. Throws (naming the file) on any failure; the
-  // temp file is then removed and `path` is untouched.
+  // renames over `path`, then syncs the directory. Throws (naming the file) on any failure;
+  // `path` is then untouched (the destructor removes the temp file).
   void commit(const FrameRecord& record);
   const std::filesystem::path& path() const { return path_; }
 
