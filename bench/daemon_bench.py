@@ -310,11 +310,15 @@ def lag(args, root):
                        "resident": args.resident,
                        "seconds": args.seconds, "runs": results}, f)
     if args.png:
-        base = None
-        if args.baseline:
-            with open(args.baseline) as f:
-                base = json.load(f)
-        lag_plot(results, update, args.png, base, args.label, args.baseline_label)
+        lag_plot(results, update, args.png, load_baseline(args), args.label, args.baseline_label)
+
+
+def load_baseline(args):
+    """The --baseline run's JSON, or None."""
+    if not args.baseline:
+        return None
+    with open(args.baseline) as f:
+        return json.load(f)
 
 
 def lag_plot(results, update, path, base=None, label="", base_label="baseline"):
@@ -415,11 +419,7 @@ def main():
         if args.replot:
             with open(args.replot) as f:
                 run = json.load(f)
-            base = None
-            if args.baseline:
-                with open(args.baseline) as f:
-                    base = json.load(f)
-            lag_plot(run["runs"], run["reference"][1], args.png, base, args.label,
+            lag_plot(run["runs"], run["reference"][1], args.png, load_baseline(args), args.label,
                      args.baseline_label)
             return
         if args.lag:

@@ -26,6 +26,7 @@ constexpr char kMagicV2[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '2'};
 constexpr char kMagicV1[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '1'};
 // Version 3: magic, u64 m, blob, u64 blob hash | record | u64 n, u64 record hash.
 constexpr std::size_t kHeadV3 = sizeof kMagic + 8, kTailV3 = 16;
+constexpr std::size_t kMinV3 = kHeadV3 + 8 + kTailV3;  // an empty blob and an empty record
 constexpr std::uint64_t kFileSeed = 0x66726d32;
 
 std::uint64_t file_hash(std::span<const std::uint8_t> b) {
@@ -149,8 +150,10 @@ std::span<const std::uint8_t> bytes_of(const void* p, std::size_t n) {
   return {static_cast<const std::uint8_t*>(p), n};
 }
 
-// The tail of a version 3 file: the record, its size and its hash.
+// The tail of a version 3 file: the record, its size and its hash. Throws std::invalid_argument
+// on a non-finite record.
 std::vector<std::uint8_t> record_tail(const FrameRecord& record, std::size_t accumulator_bytes) {
+  check_finite(record);
   const std::string text = record_text(record, accumulator_bytes);
   const std::uint64_t n = text.size(), h = text_hash(text);
   std::vector<std::uint8_t> out(text.begin(), text.end());
@@ -190,7 +193,6 @@ std::size_t put_statistics(const FrameAccumulator& frame, std::span<const std::u
 std::vector<std::uint8_t> frame_state_bytes(const FrameRecord& record,
                                             const FrameAccumulator& frame,
                                             const AovAccumulator& aovs) {
-  check_finite(record);
   std::vector<std::uint8_t> out;
   const std::size_t accumulator_bytes = put_statistics(
       frame, aovs.serialize(),
@@ -255,15 +257,15 @@ std::uint64_t FrameStateWriter::digest() {
 void FrameStateWriter::commit(const FrameRecord& record) {
   const Written w = wait();
   if (fd_ < 0) throw std::logic_error(path_.string() + ": committed twice");
-  try {
-    check_finite(record);
-  } catch (const std::invalid_argument& e) {
-    throw std::invalid_argument(path_.string() + ": " + e.what());
-  }
   if (record.digest != w.digest) {
     throw std::logic_error(path_.string() + ": the record's digest is not the statistics'");
   }
-  const auto tail = record_tail(record, w.accumulator_bytes);
+  std::vector<std::uint8_t> tail;
+  try {
+    tail = record_tail(record, w.accumulator_bytes);
+  } catch (const std::invalid_argument& e) {
+    throw std::invalid_argument(path_.string() + ": " + e.what());
+  }
   if (!write_all(fd_, tail)) {
     throw std::runtime_error(path_.string() + ": write failed: " + std::strerror(errno));
   }
@@ -316,10 +318,10 @@ bool has_magic(std::span<const std::uint8_t> b, const char (&magic)[8]) {
   return b.size() >= sizeof magic && std::memcmp(b.data(), magic, sizeof magic) == 0;
 }
 
-// Version 3's sizes: m (the head's), n (the tail's) and the file's must add up.
+// Version 3's sizes: m (the head's), n (the tail's) and the file's (at least kMinV3, checked
+// before m and n are read) must add up.
 void check_v3_sizes(std::uint64_t size, std::uint64_t m, std::uint64_t n, const std::string& path) {
-  if (size < kHeadV3 + 8 + kTailV3) throw std::runtime_error(path + ": truncated frame state");
-  if (m > size - kHeadV3 - 8 - kTailV3 || n != size - kHeadV3 - 8 - kTailV3 - m) {
+  if (m > size - kMinV3 || n != size - kMinV3 - m) {
     throw std::runtime_error(path + ": inconsistent frame state");
   }
 }
@@ -342,9 +344,7 @@ FrameRecord v3_record(std::span<const std::uint8_t> end, std::uint64_t m, const 
 // Version 3, the whole file: the record, and the blob checked against its hash.
 FrameRecord parse_v3(std::span<const std::uint8_t> all, const std::string& path,
                      std::span<const std::uint8_t>* blob, std::size_t* accumulator_bytes) {
-  if (all.size() < kHeadV3 + 8 + kTailV3) {
-    throw std::runtime_error(path + ": truncated frame state");
-  }
+  if (all.size() < kMinV3) throw std::runtime_error(path + ": truncated frame state");
   const std::uint64_t m = get64(all, sizeof kMagic), n = get64(all, all.size() - kTailV3);
   check_v3_sizes(all.size(), m, n, path);
   FrameRecord r = v3_record(all.last(n + kTailV3), m, path, accumulator_bytes);
@@ -395,7 +395,7 @@ FrameRecord load_frame_record(const fs::path& path) {
   read_at(in, 0, head, name);
   constexpr std::uint64_t kMaxRecord = 64u << 20;
   if (has_magic(head, kMagic)) {  // version 3: the record is read from the end
-    if (size < kHeadV3 + 8 + kTailV3) throw std::runtime_error(name + ": truncated frame state");
+    if (size < kMinV3) throw std::runtime_error(name + ": truncated frame state");
     std::uint8_t tail[kTailV3];
     read_at(in, size - kTailV3, tail, name);
     const std::uint64_t n = get64(tail, 0), m = get64(head, sizeof kMagic);
@@ -420,7 +420,8 @@ FrameAccumulator parse_frame_state(std::span<const std::uint8_t> all, const std:
   if (has_magic(all, kMagic)) {
     r = parse_v3(all, path, &blob, &acc_bytes);
   } else {
-    if (has_magic(all, kMagicV2)) {
+    const bool v2 = has_magic(all, kMagicV2);
+    if (v2) {
       // Version 2: the whole file's hash first, then the parts.
       if (all.size() < sizeof kMagic + 32)
         throw std::runtime_error(path + ": truncated frame state");
@@ -431,7 +432,7 @@ FrameAccumulator parse_frame_state(std::span<const std::uint8_t> all, const std:
     std::size_t offset = 0;
     std::optional<std::size_t> acc_key;
     r = parse_record(all, path, &offset, &acc_key);
-    if (has_magic(all, kMagicV2)) {
+    if (v2) {
       if (offset + 16 > all.size()) throw std::runtime_error(path + ": truncated");
       const std::uint64_t m = get64(all, offset);
       if (m != all.size() - offset - 16)
