@@ -249,12 +249,14 @@ int run_wait(const WaitOptions& in) {
   const bool forever = !(o.timeout > 0);
   const auto deadline =
       Clock::now() + std::chrono::milliseconds(static_cast<long long>(o.timeout * 1000.0));
+  // Rounded up: an operation that expires with the wait ends at or after the deadline, so its
+  // timeout reads as the wait's own (expired() holds), never as a failing daemon.
   auto left = [&] {
     if (forever) return std::chrono::milliseconds(30000);
     return std::max(
         std::chrono::milliseconds(1),
         std::min(std::chrono::milliseconds(30000),
-                 std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now())));
+                 std::chrono::ceil<std::chrono::milliseconds>(deadline - Clock::now())));
   };
   auto expired = [&] { return !forever && Clock::now() >= deadline; };
 

@@ -1,6 +1,7 @@
 #include "daemon/serve.hpp"
 
 #include <fcntl.h>
+#include <poll.h>
 #include <signal.h>
 #include <spdlog/spdlog.h>
 #include <sys/file.h>
@@ -8,8 +9,10 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -28,6 +31,41 @@ namespace proden::daemon {
 namespace fs = std::filesystem;
 
 namespace {
+
+// SIGTERM/SIGINT arrive through a pipe. A handler, not sigwait alone: libraries start threads
+// before main() (OpenBLAS starts its pool when it is loaded) that never block these signals, and
+// a signal the kernel hands one of them would kill the daemon without draining. With a handler
+// installed, whichever thread takes the signal writes its number here.
+int g_signal_pipe[2] = {-1, -1};
+
+extern "C" void on_stop_signal(int sig) {
+  const int saved = errno;
+  const unsigned char c = static_cast<unsigned char>(sig);
+  [[maybe_unused]] const ssize_t n = ::write(g_signal_pipe[1], &c, 1);
+  errno = saved;
+}
+
+// Installs the handler for SIGTERM and SIGINT; false when the pipe cannot be made.
+bool catch_stop_signals() {
+  if (::pipe2(g_signal_pipe, O_CLOEXEC | O_NONBLOCK) != 0) return false;
+  struct sigaction sa {};
+  sa.sa_handler = on_stop_signal;
+  sigemptyset(&sa.sa_mask);
+  sa.sa_flags = SA_RESTART;
+  ::sigaction(SIGTERM, &sa, nullptr);
+  ::sigaction(SIGINT, &sa, nullptr);
+  return true;
+}
+
+// Blocks until a stop signal was taken; returns its number.
+int wait_stop_signal() {
+  for (;;) {
+    pollfd p{g_signal_pipe[0], POLLIN, 0};
+    if (::poll(&p, 1, -1) <= 0) continue;  // EINTR: the handler ran on this thread
+    unsigned char c = 0;
+    if (::read(g_signal_pipe[0], &c, 1) == 1) return c;
+  }
+}
 
 struct ServeFlags {
   std::string config_file, bind, state_dir, token_file, log_level;
@@ -144,7 +182,13 @@ int run_serve(Config c, const std::string& token) {
     rl.rlim_cur = rl.rlim_max;
     ::setrlimit(RLIMIT_NOFILE, &rl);
   }
-  // Signals are taken synchronously by this thread; every other thread inherits the mask.
+  // The stop signals reach the handler (catch_stop_signals); the daemon's own threads block
+  // them (they inherit this mask) so that no worker or I/O call is interrupted, and this thread
+  // unblocks them once it waits.
+  if (!catch_stop_signals()) {
+    spdlog::error("cannot make the signal pipe: {}", std::strerror(errno));
+    return 1;
+  }
   sigset_t set;
   sigemptyset(&set);
   sigaddset(&set, SIGTERM);
@@ -177,9 +221,8 @@ int run_serve(Config c, const std::string& token) {
   spdlog::info("listening on http://{}:{} (state {}, {} worker(s), token {})", host, port,
                c.state_dir, c.worker_threads, token.empty() ? "off" : "on");
 
-  int sig = 0;
-  while (sigwait(&set, &sig) != 0) {
-  }
+  ::pthread_sigmask(SIG_UNBLOCK, &set, nullptr);
+  const int sig = wait_stop_signal();
   spdlog::info("signal {}: draining", sig);
   api.set_draining();
   engine.stop();  // finishes in-flight frames; their state is persisted as they complete

@@ -137,5 +137,41 @@ class ConfigBoundsTest(unittest.TestCase):
                 self.assertIn(key.encode(), r.stderr)
 
 
+def signal_blocked(pid, tid, sig):
+    """Whether thread `tid` of process `pid` blocks `sig` (/proc's SigBlk mask)."""
+    with open("/proc/%d/task/%d/status" % (pid, tid)) as f:
+        for line in f:
+            if line.startswith("SigBlk:"):
+                return bool(int(line.split()[1], 16) >> (sig - 1) & 1)
+    return True
+
+
+class StopSignalTest(unittest.TestCase):
+    def test_sigterm_taken_by_any_thread_drains(self):
+        """Libraries start threads before main() that do not block SIGTERM (OpenBLAS's pool). The
+        kernel may hand a process's SIGTERM to one of them: the daemon must still drain and exit 0,
+        not die of the signal. The signal is sent to each such thread directly (tgkill)."""
+        import ctypes
+        import signal
+        libc = ctypes.CDLL(None, use_errno=True)
+        tgkill = 234  # x86-64 syscall number
+        with TempRoot() as root:
+            d = Daemon(root).start()
+            pid = d.proc.pid
+            try:
+                tids = sorted(int(t) for t in os.listdir("/proc/%d/task" % pid))
+                open_threads = [t for t in tids
+                                if t != pid and not signal_blocked(pid, t, signal.SIGTERM)]
+                # Without such a thread nothing else can take it: then the main thread is the test.
+                target = open_threads[0] if open_threads else pid
+                print("threads %d, not blocking SIGTERM (besides main): %s" % (len(tids), open_threads))
+                self.assertEqual(libc.syscall(tgkill, pid, target, int(signal.SIGTERM)), 0)
+                rc = d.proc.wait(timeout=30)
+            finally:
+                d.stop()
+            self.assertEqual(rc, 0, "the daemon died of the signal instead of draining")
+            self.assertIn("draining", d.read_log())
+
+
 if __name__ == "__main__":
     unittest.main(verbosity=2)
