@@ -81,6 +81,9 @@ void validate_job_spec(const JobSpec& spec) {
       (!std::isfinite(*spec.spp) || *spec.spp < kMinPassSpp || *spec.spp > kMaxPassSpp)) {
     bad("spp", "must be a number of samples per pass in [0.001, 1048576]");
   }
+  if (!is_frame_compression(spec.output.compression)) {
+    bad("output.compression", "one of " + frame_compressions());
+  }
 }
 
 JobSpec parse_job_spec(const json& body) {
@@ -176,6 +179,9 @@ JobSpec parse_job_spec(const json& body) {
     if (!o["aovs"].is_boolean()) bad("output.aovs", "must be a boolean");
     j.output.aovs = o["aovs"].get<bool>();
   }
+  if (o.contains("compression") && !o["compression"].is_null()) {
+    j.output.compression = get_string(o, "compression", "output.compression", false);
+  }
   if (body.contains("view_layer") && !body["view_layer"].is_null()) {
     j.view_layer = get_string(body, "view_layer", "view_layer", false);
     if (j.view_layer.empty() || j.view_layer.size() > 64 ||
@@ -211,7 +217,8 @@ json to_json(const JobSpec& j) {
                 {"formats", j.output.png ? json::array({"exr", "png"}) : json::array({"exr"})},
                 {"name", j.output.name},
                 {"history", j.output.history},
-                {"aovs", j.output.aovs}}},
+                {"aovs", j.output.aovs},
+                {"compression", j.output.compression}}},
               {"min_passes", j.min_passes},
               {"paused", j.paused},
               {"state", j.paused ? "paused" : "active"},

@@ -1,5 +1,6 @@
 #include "proden/protocol/publish.hpp"
 
+#include <algorithm>
 #include <sstream>
 
 #include "proden/io/image_writer.hpp"
@@ -43,11 +44,26 @@ Attributes header_attributes(const FrameProvenance& frame, const PipelineResult&
   };
 }
 
+bool is_frame_compression(std::string_view name) {
+  return std::find(kFrameCompressions.begin(), kFrameCompressions.end(), name) !=
+         kFrameCompressions.end();
+}
+
+std::string frame_compressions() {
+  std::string s;
+  for (const auto c : kFrameCompressions) s += (s.empty() ? "" : ", ") + std::string(c);
+  return s;
+}
+
 void write_frame(const std::string& path, const PipelineResult& run, const Attributes& attributes,
-                 bool layers, bool half, const AovAccumulator* aovs) {
+                 const FrameFormat& format, const AovAccumulator* aovs) {
+  if (!is_frame_compression(format.compression)) {
+    throw std::runtime_error(path + ": compression '" + format.compression + "' is not one of " +
+                             frame_compressions());
+  }
   std::vector<io::NamedChannel> channels;
   io::add_layer(channels, "", run.result);
-  if (layers) {
+  if (format.layers) {
     for (const auto& [name, image] : run.layers()) {
       io::add_layer(channels, std::string(name) + ".", *image);
     }
@@ -55,7 +71,8 @@ void write_frame(const std::string& path, const PipelineResult& run, const Attri
   const std::vector<AovChannel> aov_planes = aovs ? aovs->result() : std::vector<AovChannel>{};
   io::add_aovs(channels, aov_planes);
   io::WriteOptions w;
-  w.half = half;
+  w.half = format.half;
+  w.compression = format.compression;
   w.attributes = attributes;
   if (aovs) {
     w.attributes.insert(w.attributes.end(), aovs->attributes().begin(), aovs->attributes().end());

@@ -142,7 +142,7 @@ int run_denoise(const DenoiseOptions& o) {
       protocol::header_attributes(protocol::provenance_of(a.frame, est), res);
   if (!a.first.layer.empty()) attributes.emplace_back("proden:view_layer", a.first.layer);
   try {
-    protocol::write_frame(o.out, res, attributes, o.aov, o.half, &a.aovs);
+    protocol::write_frame(o.out, res, attributes, {o.aov, o.half, o.compression}, &a.aovs);
   } catch (const std::exception& e) {
     spdlog::error("{}", e.what());
     return kInternalError;

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include "proden/io/profile.hpp"
+#include "proden/protocol/compression.hpp"
 
 namespace proden::cli {
 
@@ -35,6 +36,7 @@ struct DenoiseOptions {
   std::string out;
   bool aov = false;
   bool half = false;
+  std::string compression{protocol::kDefaultFrameCompression};  // protocol/compression.hpp
   bool json = false;
   bool timings = false;  // print each stage's time (and in --json)
   bool progress = true;

@@ -2,6 +2,8 @@
 
 #include <string>
 
+#include "proden/protocol/compression.hpp"
+
 namespace proden::cli {
 
 void add_input_flags(CLI::App& cmd, InputOptions& in, std::string& renderer) {
@@ -76,6 +78,14 @@ void DenoiseCommand::add_to(CLI::App& app) {
   d.add_flag("--aov", den.aov,
              "Also write render, variance, denoised, alpha, sure and mixvariance layers");
   d.add_flag("--half", den.half, "Write 16-bit half floats instead of 32-bit");
+  d.add_option(
+       "--compression", den.compression,
+       "OpenEXR compression: " + protocol::frame_compressions() + " (the job's output.compression)")
+      ->check([](const std::string& c) {
+        return protocol::is_frame_compression(c) ? std::string()
+                                                 : "one of " + protocol::frame_compressions();
+      })
+      ->capture_default_str();
   d.add_flag("--json", den.json, "Print a JSON summary of the frame on stdout");
   d.add_flag("-q,--quiet", quiet, "No progress display");
   d.add_option("passes", den.passes, "Pass files of one frame")->required();

@@ -303,7 +303,7 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
     };
     if (!rec.view_layer.empty()) extra.emplace_back("proden:view_layer", rec.view_layer);
     const auto outputs = FrameProcessor::publish(out, output_base(spec, frame_no).string(),
-                                                 spec.output.png, extra, aovs.get());
+                                                 spec.output, extra, aovs.get());
     // Older versions stay addressable (docs/api.md, "History and older versions"): the
     // versions/ directory is made beneath the output root like output.dir itself.
     if (roots) {

@@ -67,16 +67,18 @@ ProcessedFrame FrameProcessor::process(const FrameAccumulator& frame, const Fram
 }
 
 std::vector<std::string> FrameProcessor::publish(const ProcessedFrame& frame,
-                                                 const std::string& base, bool png,
+                                                 const std::string& base,
+                                                 const protocol::OutputSpec& output,
                                                  const protocol::Attributes& extra,
                                                  const AovAccumulator* aovs) {
   std::vector<std::string> written;
   protocol::Attributes attributes = frame.attributes;
   attributes.insert(attributes.end(), extra.begin(), extra.end());
-  protocol::write_frame(base + ".exr", frame.run, attributes, /*layers=*/true, /*half=*/false,
-                        aovs);
+  protocol::FrameFormat format;
+  format.compression = output.compression;
+  protocol::write_frame(base + ".exr", frame.run, attributes, format, aovs);
   written.push_back(base + ".exr");
-  if (png) {
+  if (output.png) {
     write_png_preview(base + ".png", frame.run.result);
     written.push_back(base + ".png");
   }

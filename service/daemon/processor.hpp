@@ -40,10 +40,11 @@ class FrameProcessor {
                                 const ErrorContext& error_context);
 
   // Writes <base>.exr (R,G,B + every layer as <layer>.R/G/B + the renderer AOVs, with the header
-  // fields plus `extra`) and, if png, <base>.png (tone-mapped result), atomically. Returns the
-  // paths written, the EXR first.
+  // fields plus `extra`, compressed as output.compression says) and, if output.png, <base>.png
+  // (tone-mapped result), atomically. Returns the paths written, the EXR first.
   static std::vector<std::string> publish(const ProcessedFrame& frame, const std::string& base,
-                                          bool png, const protocol::Attributes& extra = {},
+                                          const protocol::OutputSpec& output,
+                                          const protocol::Attributes& extra = {},
                                           const AovAccumulator* aovs = nullptr);
 };
 

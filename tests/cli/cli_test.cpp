@@ -209,6 +209,33 @@ TEST_CASE("denoise --half writes half floats and --no-features reports HDR only"
   CHECK(in.header().channels().findChannel("render.R") == nullptr);  // no --aov
 }
 
+TEST_CASE("denoise --compression: PIZ by default, the values the same in every compression",
+          "[cli]") {
+  Scratch s;
+  std::vector<std::vector<std::vector<float>>> values;
+  for (const std::string c : {"", "zip", "rle", "none"}) {
+    const std::string out = s.file("c" + c + ".exr");
+    const Run r = proden("denoise -q --aov" + (c.empty() ? "" : " --compression " + c) + " --out " +
+                             out + join(passes("cornell")),
+                         s);
+    INFO(r.err);
+    REQUIRE(r.code == 0);
+    Imf::InputFile in(out.c_str());
+    const Imf::Compression want = c.empty()    ? Imf::PIZ_COMPRESSION
+                                  : c == "zip" ? Imf::ZIP_COMPRESSION
+                                  : c == "rle" ? Imf::RLE_COMPRESSION
+                                               : Imf::NO_COMPRESSION;
+    CHECK(in.header().compression() == want);
+    int w = 0, h = 0;
+    values.push_back(read_exr(out, {"R", "G", "B", "denoised.R", "alpha.G", "variance.B"}, &w, &h));
+  }
+  for (std::size_t i = 1; i < values.size(); ++i) CHECK(values[i] == values[0]);  // lossless
+  const Run bad =
+      proden("denoise -q --compression dwaa --out " + s.file("x.exr") + join(passes("cornell")), s);
+  CHECK(bad.code != 0);
+  CHECK_THAT(bad.err, Catch::Contains("one of piz, zip, zips, rle, none"));
+}
+
 TEST_CASE("eval agrees with metrics computed independently", "[cli][real]") {
   Scratch s;
   const std::string ref = sample("renders/cornell/reference.exr");
@@ -435,7 +462,7 @@ TEST_CASE(
   const auto v = read_exr(out, {"variance.R", "variance.G", "variance.B"}, &w, &h);
   const auto y = read_exr(out, {"denoised.R", "denoised.G", "denoised.B"}, &w, &h);
   const auto a = read_exr(out, {"alpha.R", "alpha.G", "alpha.B"}, &w, &h);
-  read_exr(out, {"sure.R", "sure.G", "sure.B"}, &w, &h);                      // present
+  read_exr(out, {"sure.R", "sure.G", "sure.B"}, &w, &h);                       // present
   read_exr(out, {"mixvariance.R", "mixvariance.G", "mixvariance.B"}, &w, &h);  // present
   const auto cq = read_exr(out, {"cvsquare.R", "cvsquare.G", "cvsquare.B"}, &w, &h);
   const auto cv = read_exr(out, {"cvvariance.R", "cvvariance.G", "cvvariance.B"}, &w, &h);

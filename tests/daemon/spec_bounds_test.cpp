@@ -59,6 +59,28 @@ TEST_CASE("Job spec: validate_job_spec checks specs not parsed from JSON", "[dae
   CHECK_NOTHROW(protocol::validate_job_spec(s));
 }
 
+TEST_CASE("Job spec: output.compression is a lossless OpenEXR one, echoed back",
+          "[daemon][bounds]") {
+  const auto with = [](json c) {
+    return json{{"name", "n"}, {"output", {{"dir", "/o"}, {"compression", std::move(c)}}}};
+  };
+  for (const char* lossy : {"dwaa", "b44", "pxr24", "ZIP", "", "zip "}) {
+    CHECK_THAT(refusal(with(lossy)), Catch::StartsWith("output.compression"));
+  }
+  CHECK_THAT(refusal(with(3)), Catch::StartsWith("output.compression"));
+  for (const auto c : protocol::kFrameCompressions) {
+    const protocol::JobSpec s = protocol::parse_job_spec(with(std::string(c)));
+    CHECK(s.output.compression == c);
+    CHECK(protocol::to_json(s)["output"]["compression"] == std::string(c));
+  }
+  // A spec stored before the key existed reads with the default.
+  const protocol::JobSpec d = protocol::parse_job_spec(job_with("spp", 4));
+  CHECK(d.output.compression == protocol::kDefaultFrameCompression);
+  protocol::JobSpec s = d;
+  s.output.compression = "dwaa";
+  CHECK_THROWS_AS(protocol::validate_job_spec(s), protocol::ApiError);
+}
+
 TEST_CASE("Config: every number is bounded and a refusal names the key", "[daemon][bounds]") {
   CHECK(config_refusal(daemon::to_json(daemon::Config{})).empty());  // the defaults are valid
   CHECK_THAT(config_refusal({{"worker_threads", 1e300}}), Catch::Contains("worker_threads"));

@@ -23,6 +23,10 @@ LAYERS = ["render", "variance", "denoised", "alpha", "sure", "mixvariance"]
 CV_LAYERS = ["cvsquare", "cvvariance"]
 
 
+# OpenEXR's compression attribute values (file layout spec).
+ZIP, PIZ = 3, 4
+
+
 def exr_header(data):
     """Parses a single-part OpenEXR header: {name: (type, raw bytes)} (OpenEXR file layout spec)."""
     if data[:4] != b"\x76\x2f\x31\x01":
@@ -56,9 +60,10 @@ def channels(attrs):
 
 class PublishTest(SharedDaemonTest):
 
-    def publish(self, name, pipeline=None):
+    def publish(self, name, pipeline=None, **extra):
         """A job fed CORNELL[0], CORNELL[1] by upload; returns (job id, frame status, EXR bytes)."""
-        extra = {"pipeline": pipeline} if pipeline is not None else {}
+        if pipeline is not None:
+            extra["pipeline"] = pipeline
         jid = self.d.create_job(name, **extra)
         for p, path in (("a", CORNELL[0]), ("b", CORNELL[1])):
             with open(path, "rb") as f:
@@ -122,11 +127,28 @@ class PublishTest(SharedDaemonTest):
             cli_hdr = strings(cli_attrs)
             for k in HEADER_FIELDS + ["Software"]:
                 self.assertEqual(cli_hdr[k], hdr[k], k)
+            self.assertEqual(cli_attrs["compression"], attrs["compression"])
             self.assertEqual(sorted(channels(cli_attrs)), sorted(chans))
             self.assertEqual(summary["estimated_mse"], status["estimated_mse"])
             self.assertEqual(summary["estimated_mse_source"], status["estimated_mse_source"])
             self.assertEqual(summary["estimated_error"], status["estimated_error"])
             self.assert_same_result(published, out)
+
+    def test_output_compression(self):
+        """PIZ by default; a job's output.compression is what its published EXR says, echoed in
+        the job; a lossy or unknown one is refused naming the field."""
+        jid, _, exr = self.publish("pub_piz")
+        self.assertEqual(exr_header(exr)["compression"], ("compression", bytes([PIZ])))
+        out = os.path.join(self.d.allowed, "pub_zip_out")
+        jid, _, exr = self.publish("pub_zip", output={"dir": out, "compression": "zip"})
+        self.assertEqual(exr_header(exr)["compression"], ("compression", bytes([ZIP])))
+        s, job = self.d.json("GET", "/api/v1/jobs/" + jid)
+        self.assertEqual((s, job["output"]["compression"]), (200, "zip"))
+        for bad in ("dwaa", "b44", 4):
+            s, b = self.d.json("POST", "/api/v1/jobs",
+                               {"name": "pub_bad", "output": {"dir": out, "compression": bad}})
+            self.assertEqual(s, 400, b)
+            self.assertIn("output.compression", b["error"]["message"])
 
     def test_job_denoiser_gaussian_is_honoured(self):
         jid, status, exr = self.publish("pub_gauss", {"denoiser": "gaussian", "tile": 64})

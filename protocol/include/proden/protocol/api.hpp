@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "proden/progressive.hpp"
+#include "proden/protocol/compression.hpp"
 #include "proden/protocol/estimate.hpp"
 
 namespace proden::protocol {
@@ -41,6 +42,7 @@ struct OutputSpec {
   std::string name = "{job}_####";
   int history = 8;   // versions kept per frame besides the latest (0-1000)
   bool aovs = true;  // accumulate and write the renderer's AOVs beside the result
+  std::string compression{kDefaultFrameCompression};  // the EXR's (protocol/compression.hpp)
 };
 
 // A job's `pipeline` object: the keys the client set, as sent (validated; echoed back with

@@ -12,6 +12,7 @@
 #include "proden/accumulator.hpp"
 #include "proden/aov.hpp"
 #include "proden/progressive.hpp"
+#include "proden/protocol/compression.hpp"
 
 namespace proden::protocol {
 
@@ -50,12 +51,19 @@ std::string software();
 // Every header field above, in that order, for this frame and run.
 Attributes header_attributes(const FrameProvenance& frame, const PipelineResult& run);
 
-// Writes `path` atomically: R,G,B = the result and, with `layers`, every layer of the run, and the
-// renderer AOVs `aovs` accumulated beside it (their own header entries, e.g. Cryptomatte's,
-// added), with `attributes` in the header; `half` stores 16-bit halves. Throws
-// std::runtime_error naming the path.
+// How a published frame is stored.
+struct FrameFormat {
+  bool layers = true;  // every layer of the run besides the result
+  bool half = false;   // 16-bit halves instead of 32-bit floats
+  std::string compression = std::string(kDefaultFrameCompression);  // one of kFrameCompressions
+};
+
+// Writes `path` atomically: R,G,B = the result and, with `format.layers`, every layer of the run,
+// and the renderer AOVs `aovs` accumulated beside it (their own header entries, e.g.
+// Cryptomatte's, added), with `attributes` in the header. Throws std::runtime_error naming the
+// path.
 void write_frame(const std::string& path, const PipelineResult& run, const Attributes& attributes,
-                 bool layers, bool half = false, const AovAccumulator* aovs = nullptr);
+                 const FrameFormat& format, const AovAccumulator* aovs = nullptr);
 
 // The estimated error as the daemon's frame status and `proden denoise --json` report it:
 // protocol/estimate.hpp's put_estimated_error ("estimated_mse", "estimated_mse_source" and the
