@@ -186,7 +186,7 @@ def percentile(xs, q):
     return xs[lo] + (xs[hi] - xs[lo]) * (k - lo)
 
 
-def lag_daemon(root, name, resident=None):
+def lag_daemon(root, name, resident=None, compression=None):
     # The shipped watch settings (settle 1 s, tick 200 ms, full scan every 2 s): the lag a farm sees.
     config = {"watch": {}}
     if resident is not None:
@@ -196,14 +196,16 @@ def lag_daemon(root, name, resident=None):
     d.start()
     watch = os.path.join(d.allowed, "w")
     # output.history 0: only the latest image per frame stays on disk (the bench's disk budget).
-    jid = d.create_job(name, watch, pattern="{pass}/f_{frame}.exr", spp=4,
-                       output={"dir": os.path.join(d.allowed, "out"), "history": 0})
+    output = {"dir": os.path.join(d.allowed, "out"), "history": 0}
+    if compression:
+        output["compression"] = compression
+    jid = d.create_job(name, watch, pattern="{pass}/f_{frame}.exr", spp=4, output=output)
     return d, watch, jid
 
 
-def lag_reference(root, paths, resident=None):
+def lag_reference(root, paths, resident=None, compression=None):
     """One isolated update: a single pass into an idle daemon, rename -> SSE frame event."""
-    d, watch, _ = lag_daemon(root, "ref", resident)
+    d, watch, _ = lag_daemon(root, "ref", resident, compression)
     log = FrameEventLog(d)
     log.start()
     rows = []
@@ -219,11 +221,11 @@ def lag_reference(root, paths, resident=None):
     return rows, stages
 
 
-def lag_run(root, paths, frames, rate, seconds, drain_s, resident=None):
+def lag_run(root, paths, frames, rate, seconds, drain_s, resident=None, compression=None):
     """Places passes round-robin over `frames` frames at `rate` passes/min for `seconds`, then
     waits up to `drain_s` for the last to be published. Returns the per-pass lags (None: not
     published within the drain), the stage means and the worker utilisation."""
-    d, watch, _ = lag_daemon(root, "r%d" % rate, resident)
+    d, watch, _ = lag_daemon(root, "r%d" % rate, resident, compression)
     log = FrameEventLog(d)
     log.start()
     n = int(rate * seconds / 60)
@@ -280,14 +282,15 @@ def lag(args, root):
     print("1920x1080 generic float EXR passes with features (%s; %.1f MB each), %d distinct "
           "(made in %.0f s), placed by hard link + rename" % (
               FEATURE_CHANNELS, os.path.getsize(paths[0]) / 1e6, len(paths), time.monotonic() - t0))
-    ref, ref_stages = lag_reference(root, paths, args.resident)
+    ref, ref_stages = lag_reference(root, paths, args.resident, args.compression)
     update = ref[1]
     print("reference: one pass into an idle daemon, rename -> frame event: first %.2f s, second "
           "%.2f s (the update time U below is the second)" % (ref[0], ref[1]))
     print("  stages: " + ", ".join("%s %.2f s" % (k, v[0]) for k, v in ref_stages.items()))
     results = []
     for rate in rates:
-        r = lag_run(root, paths, args.frames, rate, args.seconds, args.drain, args.resident)
+        r = lag_run(root, paths, args.frames, rate, args.seconds, args.drain, args.resident,
+                    args.compression)
         done = [x for x in r["lags"] if x is not None]
         third = max(1, len(r["lags"]) // 3)
         first = [x for x in r["lags"][:third] if x is not None]
@@ -307,7 +310,7 @@ def lag(args, root):
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"reference": ref, "reference_stages": ref_stages, "frames": args.frames,
-                       "resident": args.resident,
+                       "resident": args.resident, "compression": args.compression,
                        "seconds": args.seconds, "runs": results}, f)
     if args.png:
         lag_plot(results, update, args.png, load_baseline(args), args.label, args.baseline_label)
@@ -406,6 +409,7 @@ def main():
     ap.add_argument("--drain", type=int, default=300, help="wait for the last version (s)")
     ap.add_argument("--resident", type=int,
                     help="the daemon's max_resident_frames (default: the shipped one, 2)")
+    ap.add_argument("--compression", help="the jobs' output.compression (default: the daemon's)")
     ap.add_argument("--lag-src", help="keep the generated passes here (reused if present)")
     ap.add_argument("--json")
     ap.add_argument("--png")

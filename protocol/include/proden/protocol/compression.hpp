@@ -8,7 +8,7 @@
 
 namespace proden::protocol {
 
-// PIZ by default: a 1080p frame with every layer writes 2.8x faster than with ZIP and is 9 %
+// PIZ by default: a 1080p frame with every layer writes 2.5x faster than with ZIP and is 9 %
 // smaller (bench/RESULTS.md, "Publishing a frame").
 inline constexpr std::array<std::string_view, 5> kFrameCompressions = {"piz", "zip", "zips", "rle",
                                                                        "none"};
