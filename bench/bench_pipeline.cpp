@@ -1,8 +1,9 @@
 // Performance harness: per-stage time of a full progressive update on synthetic Cycles-like
 // frames (colour + albedo + normal + depth, 8 passes of 4 spp) at 1920x1080 and 3840x2160, with 1
-// and N threads: EXR read of a pass and write of the result (I/O), accumulate (add one pass),
-// estimate, denoise, SURE, mixer, t-test, compose; megapixels per second; peak memory (VmHWM) and
-// bytes of accumulated state per pixel; and the ratios the project tracks, all from this one run:
+// and N threads: EXR read of a pass and write of the published frame (I/O), accumulate (add one
+// pass), estimate, denoise, SURE, mixer, t-test, compose; megapixels per second; peak memory
+// (VmHWM) and bytes of accumulated state per pixel; and the ratios the project tracks, all from
+// this one run:
 //   update / one more Cycles spp (needs --cycles-spp-seconds, measured by bench/run_all.sh with
 //   Blender in the same run), SURE / one denoiser run (analytic and Monte-Carlo), mixer GFLOP/s /
 //   sgemm GFLOP/s (n/a until the learned mixer lands; sgemm is measured), N threads / 1, 4K /
@@ -27,12 +28,13 @@
 #include <thread>
 #include <vector>
 
+#include "bench_common.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "proden/progressive.hpp"
+#include "proden/protocol/publish.hpp"
 #include "sgemm.hpp"
-#include "bench_common.hpp"
 
 using namespace proden;
 namespace fs = std::filesystem;
@@ -75,7 +77,8 @@ double denoise_only(const FrameEstimate& est, const PipelineOptions& po) {
 
 struct SizeResult {
   int w = 0, h = 0;
-  double read_s = 0, write_s = 0, write_aov_s = 0, exr_mb = 0;
+  double read_s = 0, write_s = 0, write_published_s = 0, exr_mb = 0;
+  int published_channels = 0;
   double add_s[2] = {0, 0}, estimate_s[2] = {0, 0};
   StageTimings an[2];  // analytic, [0] = 1 thread, [1] = N threads
   StageTimings mc;     // Monte Carlo, N threads
@@ -203,7 +206,7 @@ int main(int argc, char** argv) {
     passes.clear();
     passes.shrink_to_fit();
     // Pipeline: analytic at 1 and N threads, denoiser alone at 1 and N, MC at N.
-    Image result;
+    PipelineResult run;  // the N-thread run's, written as the daemon publishes it
     for (int ti = 0; ti < 2; ++ti) {
       tbb::global_control limit(tbb::global_control::max_allowed_parallelism, thr[ti]);
       PipelineOptions o;
@@ -215,7 +218,7 @@ int main(int argc, char** argv) {
       s.cores_obtained[ti] = (cpu_seconds() - c0) / r.timings.wall;
       s.an[ti] = r.timings;
       s.denoise_only_s[ti] = denoise_only(est, o);
-      if (ti == 1) result = std::move(r.result);
+      if (ti == 1) run = std::move(r);
     }
     if (mc && (W * H <= 1920 * 1080 || sizes.size() == 1)) {
       tbb::global_control limit(tbb::global_control::max_allowed_parallelism, cores);
@@ -229,27 +232,26 @@ int main(int argc, char** argv) {
     if (io) {
       const std::string path = (fs::path(tmp) / "proden_bench_out.exr").string();
       std::vector<io::NamedChannel> ch;
-      io::add_layer(ch, "", result);
+      io::add_layer(ch, "", run.result);
       auto t0 = Clock::now();
       io::write_image(path, W, H, ch);
       s.write_s = since(t0);
-      io::add_layer(ch, "render.", est.mean);
-      io::add_layer(ch, "variance.", est.variance);
-      io::add_layer(ch, "denoised.", result);
-      io::add_layer(ch, "alpha.", result);
-      io::add_layer(ch, "sure.", est.variance);
+      // What the daemon writes for every version (protocol/publish.hpp): every layer, the
+      // default compression.
       t0 = Clock::now();
-      io::write_image(path, W, H, ch);
-      s.write_aov_s = since(t0);
+      protocol::write_frame(path, run, {}, protocol::FrameFormat{});
+      s.write_published_s = since(t0);
+      s.published_channels = 3 * (1 + static_cast<int>(run.layers().size()));
       fs::remove(path);
     }
     s.peak_bytes = peak_rss_bytes();
-    s.update_s = s.read_s + s.add_s[1] + s.estimate_s[1] + s.an[1].wall + s.write_s;
+    s.update_s = s.read_s + s.add_s[1] + s.estimate_s[1] + s.an[1].wall + s.write_published_s;
 
     std::printf(
         "I/O: read one Cycles pass EXR (float, zip, 10 ch, %.1f MB) %.3f s; write result "
-        "RGB %.3f s, with AOVs (18 ch) %.3f s\n",
-        s.exr_mb, s.read_s, s.write_s, s.write_aov_s);
+        "RGB %.3f s, the published frame (%d ch, %s) %.3f s\n",
+        s.exr_mb, s.read_s, s.write_s, s.published_channels,
+        std::string(protocol::kDefaultFrameCompression).c_str(), s.write_published_s);
     std::printf("%-22s %9s %9s\n", "stage (s)", "1 thread",
                 (std::to_string(cores) + " threads").c_str());
     std::printf("%-22s %9.3f %9.3f\n", "accumulate (add 1)", s.add_s[0], s.add_s[1]);
@@ -336,12 +338,12 @@ int main(int argc, char** argv) {
       std::fprintf(
           f,
           "  {\"width\": %d, \"height\": %d, \"read_s\": %.6f, \"write_s\": %.6f, "
-          "\"write_aov_s\": %.6f, \"exr_mb\": %.3f,\n"
+          "\"write_published_s\": %.6f, \"exr_mb\": %.3f,\n"
           "   \"add_s\": [%.6f, %.6f], \"estimate_s\": [%.6f, %.6f], "
           "\"denoise_only_s\": [%.6f, %.6f],\n"
           "   \"update_s\": %.6f, \"peak_rss_bytes\": %.0f, \"state_bytes_per_pixel\": %.1f, "
           "\"layout_bytes_per_pixel\": %.1f, \"cores_obtained\": [%.3f, %.3f],\n",
-          s.w, s.h, s.read_s, s.write_s, s.write_aov_s, s.exr_mb, s.add_s[0], s.add_s[1],
+          s.w, s.h, s.read_s, s.write_s, s.write_published_s, s.exr_mb, s.add_s[0], s.add_s[1],
           s.estimate_s[0], s.estimate_s[1], s.denoise_only_s[0], s.denoise_only_s[1], s.update_s,
           s.peak_bytes, s.state_bpp, s.layout_bpp, s.cores_obtained[0], s.cores_obtained[1]);
       print_json_stage(f, "analytic_1", s.an[0], false);

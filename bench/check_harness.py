@@ -36,7 +36,7 @@ def main():
         s = p["sizes"][0]
         if (s["width"], s["height"]) != (64, 48):
             fail("size")
-        for k in ("read_s", "write_s", "update_s", "peak_rss_bytes"):
+        for k in ("read_s", "write_s", "write_published_s", "update_s", "peak_rss_bytes"):
             if not (finite(s[k]) and s[k] > 0):
                 fail(f"sizes[0].{k} = {s[k]}")
         if s["state_bytes_per_pixel"] != s["layout_bytes_per_pixel"] or s["state_bytes_per_pixel"] < 120:
