@@ -9,6 +9,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
 #include <cstdio>
 #include <cstdlib>
@@ -35,19 +36,25 @@ namespace {
 // SIGTERM/SIGINT arrive through a pipe. A handler, not sigwait alone: libraries start threads
 // before main() (OpenBLAS starts its pool when it is loaded) that never block these signals, and
 // a signal the kernel hands one of them would kill the daemon without draining. With a handler
-// installed, whichever thread takes the signal writes its number here.
-int g_signal_pipe[2] = {-1, -1};
+// installed, whichever thread takes the signal writes its number to the pipe. The write end is
+// atomic: the handler may run on a thread started before main() set it.
+int g_signal_read = -1;
+std::atomic<int> g_signal_write{-1};
+static_assert(std::atomic<int>::is_always_lock_free);  // async-signal-safe
 
 extern "C" void on_stop_signal(int sig) {
   const int saved = errno;
   const unsigned char c = static_cast<unsigned char>(sig);
-  [[maybe_unused]] const ssize_t n = ::write(g_signal_pipe[1], &c, 1);
+  [[maybe_unused]] const ssize_t n = ::write(g_signal_write.load(), &c, 1);
   errno = saved;
 }
 
 // Installs the handler for SIGTERM and SIGINT; false when the pipe cannot be made.
 bool catch_stop_signals() {
-  if (::pipe2(g_signal_pipe, O_CLOEXEC | O_NONBLOCK) != 0) return false;
+  int fds[2];
+  if (::pipe2(fds, O_CLOEXEC | O_NONBLOCK) != 0) return false;
+  g_signal_read = fds[0];
+  g_signal_write.store(fds[1]);
   struct sigaction sa {};
   sa.sa_handler = on_stop_signal;
   sigemptyset(&sa.sa_mask);
@@ -60,10 +67,10 @@ bool catch_stop_signals() {
 // Blocks until a stop signal was taken; returns its number.
 int wait_stop_signal() {
   for (;;) {
-    pollfd p{g_signal_pipe[0], POLLIN, 0};
+    pollfd p{g_signal_read, POLLIN, 0};
     if (::poll(&p, 1, -1) <= 0) continue;  // EINTR: the handler ran on this thread
     unsigned char c = 0;
-    if (::read(g_signal_pipe[0], &c, 1) == 1) return c;
+    if (::read(g_signal_read, &c, 1) == 1) return c;
   }
 }
 
