@@ -7,7 +7,7 @@
 // Properties: a state either parses or is refused with an exception (never a crash, never UB);
 // an accepted state holds only finite numbers (record, pass history, statistics) and its digest
 // matches its record; written again (frame_state_bytes) it reads back to the same record and the
-// same digest (issue 11, classes 9 and 11).
+// same digest (issue 11, classes 9 and 11); its quarters are finite.
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -92,6 +92,13 @@ void check_accepted(const FrameRecord& rec, const FrameAccumulator& acc) {
   FUZZ_CHECK(acc2.state_digest() == acc.state_digest());
   FUZZ_CHECK(to_json(rec2).dump() == text);
   FUZZ_CHECK(acc2.serialize() == acc.serialize());
+  // Its quarters (what NFOR's error estimate runs on) hold only finite numbers.
+  const FrameEstimate e = acc.estimate({.halves = true, .features = true, .quarters = true});
+  for (const auto* qs : {&e.quarter_mean, &e.quarter_variance, &e.quarter_albedo}) {
+    for (const Image& q : *qs) {
+      for (const float v : q.data()) FUZZ_CHECK(std::isfinite(v));
+    }
+  }
 }
 
 bool parse_and_check(std::span<const std::uint8_t> bytes) {

@@ -82,19 +82,21 @@ std::size_t FrameAccumulator::dropped_samples() const {
   return s;
 }
 
-std::size_t FrameAccumulator::bytes_per_pixel(Layout layout) {
+std::size_t FrameAccumulator::bytes_per_pixel(Layout layout, bool quarters) {
   // Two halves: weight (double), pass count (uint32), RGB mean and M2 (double). Features: a mean
-  // per half and one M2 (double) per channel.
+  // per half and one M2 (double) per channel. Quarters: per half, sub-half 1's weight and its
+  // colour and feature means (double).
+  const std::size_t features =
+      (layout.albedo ? 3 : 0) + (layout.normal ? 3 : 0) + (layout.depth ? 1 : 0);
   std::size_t b = 2 * (sizeof(double) + sizeof(std::uint32_t) + 3 * 2 * sizeof(double));
-  if (layout.albedo) b += 3 * 3 * sizeof(double);
-  if (layout.normal) b += 3 * 3 * sizeof(double);
-  if (layout.depth) b += 1 * 3 * sizeof(double);
+  b += features * 3 * sizeof(double);
   if (layout.variance) b += 3 * sizeof(double);
+  if (quarters) b += 2 * (1 + 3 + features) * sizeof(double);
   return b;
 }
 
 std::size_t FrameAccumulator::state_bytes() const {
-  return bytes_per_pixel(layout_) * pixels();
+  return bytes_per_pixel(layout_, quarters_) * pixels();
 }
 
 void FrameAccumulator::check(const Pass& pass, const std::string& name) const {
@@ -155,6 +157,16 @@ void FrameAccumulator::initialise(const Pass& pass) {
   if (layout.depth) depth = {1, std::vector<double>(n, 0.0)};
   std::vector<double> rv;
   if (layout.variance) rv.assign(3 * n, 0.0);
+  std::array<SubHalf, 2> subs;
+  if (quarters_) {
+    for (auto& sh : subs) {
+      sh.weight.assign(n, 0.0);
+      sh.colour.assign(3 * n, 0.0);
+      if (layout.albedo) sh.albedo.assign(3 * n, 0.0);
+      if (layout.normal) sh.normal.assign(3 * n, 0.0);
+      if (layout.depth) sh.depth.assign(n, 0.0);
+    }
+  }
 
   width_ = pass.width();
   height_ = pass.height();
@@ -164,6 +176,7 @@ void FrameAccumulator::initialise(const Pass& pass) {
   normal_ = std::move(normal);
   depth_ = std::move(depth);
   feature_halves_ = true;
+  subs_ = std::move(subs);
   renderer_variance_ = std::move(rv);
 }
 
@@ -182,6 +195,10 @@ AddResult FrameAccumulator::add(const Pass& pass, const std::string& name) {
   const Half& other = halves_[static_cast<std::size_t>(1 - record.half)];
   const Half& a = halves_[0];
   const Half& b = halves_[1];
+  // Sub-half 1 of the pass's half, when the state keeps quarters and the pass belongs to it.
+  SubHalf* sub = quarters_ && (passes() / 2) % 2 == 1
+                     ? &subs_[static_cast<std::size_t>(record.half)]
+                     : nullptr;
   const double w = pass.spp;
   tbb::combinable<std::size_t> dropped_count([] { return std::size_t{0}; });
   tbb::combinable<std::size_t> sanitized_count([] { return std::size_t{0}; });
@@ -230,6 +247,23 @@ AddResult FrameAccumulator::add(const Pass& pass, const std::string& name) {
       if (layout_.albedo) feature(albedo_, &Half::albedo, pass.albedo);
       if (layout_.normal) feature(normal_, &Half::normal, pass.normal);
       if (layout_.depth) feature(depth_, &Half::depth, pass.depth);
+      if (sub) {  // the sub-half's weighted means (features sanitised as above, not recounted)
+        const double w_sub = sub->weight[p] + w;
+        auto mean = [&](std::vector<double>& m, const Image& img, int channels, bool is_feature) {
+          for (int c = 0; c < channels; ++c) {
+            const std::size_t i = static_cast<std::size_t>(c) * n + p;
+            std::size_t ignored = 0;
+            const double x = is_feature ? sanitize_feature(img.plane(c)[p], ignored)
+                                        : static_cast<double>(img.plane(c)[p]);
+            m[i] += (x - m[i]) * (w / w_sub);
+          }
+        };
+        mean(sub->colour, pass.colour, 3, false);
+        if (layout_.albedo) mean(sub->albedo, pass.albedo, 3, true);
+        if (layout_.normal) mean(sub->normal, pass.normal, 3, true);
+        if (layout_.depth) mean(sub->depth, pass.depth, 1, true);
+        sub->weight[p] = w_sub;
+      }
 
       for (int c = 0; c < 3; ++c) update(half.colour, c, p, n, pass.colour.plane(c)[p], w, w_half);
       half.weight[p] = w_half;
@@ -410,6 +444,62 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
     features(normal_, &Half::normal, e.normal, e.normal_variance, e.half_normal);
     features(depth_, &Half::depth, e.depth, e.depth_variance, e.half_depth);
   }
+
+  // Quarters: sub-half 1 is kept, sub-half 0 is the half less it. A quarter without a sample at
+  // a pixel (non-finite drops) falls back to its half there, as a half falls back to the frame.
+  if (options.quarters && quarters_ && passes() >= 4 && !e.half_mean[0].empty()) {
+    // Plane c of quarter 2h+s of a quantity with `channels` channels: the half's mean `hm`, the
+    // sub-half's `sm`, the half's published image `fallback` where the quarter is empty.
+    auto quarter = [&](std::size_t h, int s, const std::vector<double>& hm,
+                       const std::vector<double>& sm, int channels, const Image& fallback,
+                       Image& out) {
+      out = Image(width_, height_, channels);
+      const Half& half = halves_[h];
+      const SubHalf& sub = subs_[h];
+      parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+        for (std::size_t p = begin; p < end; ++p) {
+          const double w1 = sub.weight[p], w0 = half.weight[p] - w1;
+          const double wq = s == 1 ? w1 : w0;
+          for (int c = 0; c < channels; ++c) {
+            const std::size_t i = static_cast<std::size_t>(c) * n + p;
+            double m = fallback.plane(c)[p];
+            if (wq > 0.0) m = s == 1 ? sm[i] : (half.weight[p] * hm[i] - w1 * sm[i]) / w0;
+            out.plane(c)[p] = std::isfinite(m) ? to_float(m) : fallback.plane(c)[p];
+          }
+        }
+      });
+    };
+    for (std::size_t h = 0; h < 2; ++h) {
+      for (int s = 0; s < 2; ++s) {
+        const std::size_t q = 2 * h + static_cast<std::size_t>(s);
+        quarter(h, s, halves_[h].colour.mean, subs_[h].colour, 3, e.half_mean[h],
+                e.quarter_mean[q]);
+        e.quarter_variance[q] = Image(width_, height_, 3);
+        parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+          for (std::size_t p = begin; p < end; ++p) {
+            const double w1 = subs_[h].weight[p], w0 = halves_[h].weight[p] - w1;
+            const double wq = s == 1 ? w1 : w0;
+            for (int c = 0; c < 3; ++c) {
+              const std::size_t i = static_cast<std::size_t>(c) * n + p;
+              e.quarter_variance[q].plane(c)[p] =
+                  wq > 0.0 ? to_float(per_sample_var[i] / wq) : e.half_variance[h].plane(c)[p];
+            }
+          }
+        });
+        if (!e.half_albedo[h].empty()) {
+          quarter(h, s, halves_[h].albedo, subs_[h].albedo, 3, e.half_albedo[h],
+                  e.quarter_albedo[q]);
+        }
+        if (!e.half_normal[h].empty()) {
+          quarter(h, s, halves_[h].normal, subs_[h].normal, 3, e.half_normal[h],
+                  e.quarter_normal[q]);
+        }
+        if (!e.half_depth[h].empty()) {
+          quarter(h, s, halves_[h].depth, subs_[h].depth, 1, e.half_depth[h], e.quarter_depth[q]);
+        }
+      }
+    }
+  }
   return e;
 }
 
@@ -429,6 +519,16 @@ std::uint64_t FrameAccumulator::state_digest() const {
   for (const FeatureSpread* s : {&albedo_, &normal_, &depth_}) add(s->m2);
   const int feature_halves = feature_halves_ ? 1 : 0;
   h = hash_span(std::span<const int>(&feature_halves, 1), h);
+  if (quarters_) {  // states without quarters keep the digests they had before quarters existed
+    h = hash_span(std::span<const int>(&feature_halves, 1), h ^ 0x71);
+    for (const auto& sh : subs_) {
+      add(sh.weight);
+      add(sh.colour);
+      add(sh.albedo);
+      add(sh.normal);
+      add(sh.depth);
+    }
+  }
   add(renderer_variance_);
   for (const auto& r : history_) {
     add(r.name);

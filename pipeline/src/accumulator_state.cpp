@@ -1,14 +1,18 @@
 // Binary (de)serialisation of FrameAccumulator, so a daemon can persist a frame's accumulated
 // state and resume after a restart or crash with bit-identical statistics.
 //
-// Layout of version 2 (host byte order, which is little-endian on every platform proden supports):
+// Layout of version 3 (host byte order, which is little-endian on every platform proden supports):
 //   "PRDNACC" + version byte, u32 width, u32 height, u8 layout flags, u8 feature halves (0/1),
-//   per half: vec<f64> weight, vec<u32> count, moments, vec<f64> albedo, normal, depth means;
-//   spread albedo, normal, depth; vec<f64> renderer variance; u64 history size, per record:
+//   u8 quarters (0/1), per half: vec<f64> weight, vec<u32> count, moments, vec<f64> albedo,
+//   normal, depth means; spread albedo, normal, depth; vec<f64> renderer variance; with quarters,
+//   per half its sub-half 1: vec<f64> weight, colour, albedo, normal, depth means; u64 history
+//   size, per record:
 //   str name, f64 spp, i32 half, u64 fingerprint, u64 dropped, u64 sanitized; trailing u64 hash
 //   of everything before it.
 // vec<T> = u64 length + raw values; moments = i32 channels + vec mean + vec m2; spread = i32
 // channels + vec m2.
+// Version 2 (still read) is version 3 without the quarters byte and sub-halves: it loads with
+// quarters() false (the frame's earlier passes were not split into sub-halves).
 // Version 1 (still read: daemons have such states on disk) had no feature halves byte, no
 // per-half feature means, and moments (mean and M2 over all passes) for each feature. It loads
 // with both halves' feature means set to that mean (so the full mean is unchanged) and
@@ -25,8 +29,9 @@
 namespace proden {
 namespace {
 
-constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'A', 'C', 'C', '\x02'};
+constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'A', 'C', 'C', '\x03'};
 constexpr std::uint8_t kVersion1 = 1;
+constexpr std::uint8_t kVersion2 = 2;
 constexpr std::uint64_t kSeed = 0x61636373746174;  // "accstat"
 
 using detail::Reader;
@@ -45,6 +50,7 @@ std::vector<std::uint8_t> FrameAccumulator::serialize() const {
                                 (layout_.depth ? 4 : 0) | (layout_.variance ? 8 : 0));
   w.put(flags);
   w.put<std::uint8_t>(feature_halves_ ? 1 : 0);
+  w.put<std::uint8_t>(quarters_ ? 1 : 0);
   for (const auto& h : halves_) {
     w.vec(h.weight);
     w.vec(h.count);
@@ -60,6 +66,15 @@ std::vector<std::uint8_t> FrameAccumulator::serialize() const {
     w.vec(f->m2);
   }
   w.vec(renderer_variance_);
+  if (quarters_) {
+    for (const auto& sh : subs_) {
+      w.vec(sh.weight);
+      w.vec(sh.colour);
+      w.vec(sh.albedo);
+      w.vec(sh.normal);
+      w.vec(sh.depth);
+    }
+  }
   w.put<std::uint64_t>(history_.size());
   for (const auto& r : history_) {
     w.str(r.name);
@@ -79,7 +94,8 @@ FrameAccumulator FrameAccumulator::deserialize(std::span<const std::uint8_t> blo
     Reader::fail("not a proden frame state (bad magic)");
   }
   const std::uint8_t version = blob[sizeof(kMagic) - 1];
-  if (version != static_cast<std::uint8_t>(kMagic[sizeof(kMagic) - 1]) && version != kVersion1) {
+  if (version != static_cast<std::uint8_t>(kMagic[sizeof(kMagic) - 1]) && version != kVersion1 &&
+      version != kVersion2) {
     Reader::fail("unsupported frame state version " + std::to_string(version));
   }
   const std::size_t body = blob.size() - sizeof(std::uint64_t);
@@ -102,6 +118,11 @@ FrameAccumulator FrameAccumulator::deserialize(std::span<const std::uint8_t> blo
     const auto halves = r.get<std::uint8_t>();
     if (halves > 1) Reader::fail("bad feature halves flag in frame state");
     a.feature_halves_ = halves == 1;
+  }
+  if (version != kVersion1 && version != kVersion2) {
+    const auto quarters = r.get<std::uint8_t>();
+    if (quarters > 1) Reader::fail("bad quarters flag in frame state");
+    a.quarters_ = quarters == 1;
   }
   const std::size_t n = a.pixels();
   auto channels = [&r](int expected) {
@@ -147,6 +168,15 @@ FrameAccumulator FrameAccumulator::deserialize(std::span<const std::uint8_t> blo
     }
   }
   a.renderer_variance_ = r.vec<double>(a.layout_.variance ? 3 * n : 0);
+  if (a.quarters_) {
+    for (auto& sh : a.subs_) {
+      sh.weight = r.vec<double>(n);
+      sh.colour = r.vec<double>(len(n > 0 ? 3 : 0));
+      sh.albedo = r.vec<double>(len(alb));
+      sh.normal = r.vec<double>(len(nrm));
+      sh.depth = r.vec<double>(len(dep));
+    }
+  }
   const auto records = r.get<std::uint64_t>();
   if (records > (r.bytes.size() - r.pos) / 44) Reader::fail("truncated frame state history");
   if ((records == 0) != (n == 0)) Reader::fail("inconsistent frame state history");

@@ -281,8 +281,10 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   // frames) is no estimate of a squared error at all: the point value stays (the floor), but
   // nothing bounds it from above.
   e.consistent = m.v + m.d >= 0 && r.v + r.d >= 0;
-  if (m.v + m.d < 0) e.mse_high.reset();
-  if (r.v + r.d < 0) e.relmse_high.reset();
+  // A SURE known to be biased low (ErrorInputs::sure_unbounded) bounds nothing from above either.
+  const bool unbounded = denoised && !cv && in.sure_unbounded;
+  if (m.v + m.d < 0 || unbounded) e.mse_high.reset();
+  if (r.v + r.d < 0 || unbounded) e.relmse_high.reset();
 
   // Equivalent spp: plain MC's relMSE falls as 1/spp, so spp' = spp * q / relmse. At variance
   // scale lambda, q and the scaled part of relmse grow with lambda, and an error x on the pixel
@@ -301,9 +303,10 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
     return denom > 0 ? ctx.spp * q / denom : kInf;
   };
   e.equivalent_spp = e.relmse > 0 ? ctx.spp * q / e.relmse : eq(1.0, 0.0);
-  e.equivalent_spp_low = r.v + r.d < 0 ? 0.0
-                                       : std::min(eq(lo, zq * se_r * lo),
-                                                  eq(hi, std::isfinite(hi) ? zq * se_r * hi : 0.0));
+  e.equivalent_spp_low =
+      r.v + r.d < 0 || unbounded
+          ? 0.0
+          : std::min(eq(lo, zq * se_r * lo), eq(hi, std::isfinite(hi) ? zq * se_r * hi : 0.0));
   const double top =
       std::max(eq(lo, -zq * se_r * lo), eq(hi, std::isfinite(hi) ? -zq * se_r * hi : 0.0));
   if (std::isfinite(top)) e.equivalent_spp_high = top;

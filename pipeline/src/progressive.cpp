@@ -319,6 +319,7 @@ Pipeline& Pipeline::operator=(Pipeline&& other) noexcept {
   analytic_ = other.analytic_;
   reads_ = other.reads_;
   cross_validate_ = other.cross_validate_;
+  cv_quarters_ = other.cv_quarters_;
   halo_ = other.halo_;
   scratch_ = std::move(other.scratch_);
   other.committed_ = false;  // its stages are gone: it must be set up and committed again
@@ -432,9 +433,12 @@ void Pipeline::commit() {
   mixer_ = std::move(mixer);
   mixer_weights_ = std::move(weights_source);
   analytic_ = analytic;
-  // The error estimate's cross-validation needs the half buffers (docs/error_estimate.md).
-  cross_validate_ = denoiser_ != nullptr && !reads.halves;
+  // The error estimate's cross-validation needs the half buffers, and a denoiser that reads the
+  // halves itself needs their own halves, the quarters (docs/error_estimate.md).
+  cross_validate_ = denoiser_ != nullptr;
+  cv_quarters_ = cross_validate_ && reads.halves;
   if (cross_validate_) reads.halves = true;
+  reads.quarters = cv_quarters_;
   reads_ = reads;
   // The halo: what each mixer + t-test tile reads around itself of the full-frame y and SURE.
   // The denoiser adds nothing: it runs over the whole frame (or in halo-free tiles) first.
@@ -658,7 +662,13 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
   // Error of z = x + a (y - x) from the pipeline's own estimates, with its interval: the
   // denoiser's error cross-validated between the halves where they exist, else SURE.
   ErrorInputs ein{&x, &var, &res.result, &res.denoised, &res.alpha, &res.sure};
-  if (cross_validate_ && !frame.half_mean[0].empty() && !frame.half_mean[1].empty()) {
+  // A denoiser that reads the halves has only its hat-diagonal SURE when it is not
+  // cross-validated (fewer than 4 passes, no quarters): biased low, so it bounds nothing.
+  ein.sure_unbounded = cv_quarters_;
+  const bool have_quarters = std::all_of(frame.quarter_mean.begin(), frame.quarter_mean.end(),
+                                         [](const Image& q) { return !q.empty(); });
+  if (cross_validate_ && !frame.half_mean[0].empty() && !frame.half_mean[1].empty() &&
+      (!cv_quarters_ || have_quarters)) {
     // The denoiser on each half alone, as it would run on a frame of that half's passes: x_h
     // with its own Var[x_h] (read by the weights as the full run reads its own: max(own,
     // pooled)) and its own feature means; the feature variances stay the full frame's (measured
@@ -683,8 +693,14 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
       }
       DenoiseInputs dh = denoise_inputs(frame, hs.x, *weights, reads_.features);
       for (std::size_t k = 0; k < 2; ++k) {
-        dh.half_colour[k] = dh.half_variance[k] = View{};
-        dh.half_albedo[k] = dh.half_normal[k] = dh.half_depth[k] = View{};
+        // The half's own halves are its quarters (a denoiser that reads halves; else none).
+        const std::size_t q = 2 * static_cast<std::size_t>(h) + k;
+        dh.half_colour[k] = cv_quarters_ ? view_of(frame.quarter_mean[q]) : View{};
+        dh.half_variance[k] = cv_quarters_ ? view_of(frame.quarter_variance[q]) : View{};
+        const bool qf = cv_quarters_ && reads_.features;
+        dh.half_albedo[k] = qf ? view_of(frame.quarter_albedo[q]) : View{};
+        dh.half_normal[k] = qf ? view_of(frame.quarter_normal[q]) : View{};
+        dh.half_depth[k] = qf ? view_of(frame.quarter_depth[q]) : View{};
       }
       if (reads_.features) {  // the half's own feature means
         if (!frame.half_albedo[h].empty()) dh.albedo = view_of(frame.half_albedo[h]);

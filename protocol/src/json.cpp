@@ -69,7 +69,8 @@ json frame_summary(const FrameAccumulator& frame, const FrameEstimate& e) {
           {"hole_pixels", e.hole_pixels},
           {"low_confidence", e.low_confidence()},
           {"state_bytes", frame.state_bytes()},
-          {"state_bytes_per_pixel", FrameAccumulator::bytes_per_pixel(frame.layout())}};
+          {"state_bytes_per_pixel",
+           FrameAccumulator::bytes_per_pixel(frame.layout(), frame.quarters())}};
 }
 
 json error_json(std::string_view code, const std::string& message, const std::string& subject) {

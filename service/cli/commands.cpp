@@ -48,8 +48,10 @@ struct Accumulated {
 };
 
 Accumulated accumulate(const std::vector<std::string>& files, const InputOptions& input,
-                       const std::string& what, bool progress, bool aovs = false) {
+                       const std::string& what, bool progress, bool aovs = false,
+                       AccumulatorOptions frame = {}) {
   Accumulated a;
+  a.frame = FrameAccumulator(frame);
   std::vector<AovChannel> pass_aovs;
   Progress bar(what, static_cast<int>(files.size()), progress);
   const auto options = read_options(input);
@@ -121,7 +123,8 @@ int run_denoise(const DenoiseOptions& o) {
   const auto t0 = Clock::now();
   std::optional<Pipeline> pipeline = committed_pipeline(o.pipeline);
   if (!pipeline) return kUsage;
-  Accumulated a = accumulate(o.passes, o.input, "accumulate", o.progress, o.renderer_aovs);
+  Accumulated a = accumulate(o.passes, o.input, "accumulate", o.progress, o.renderer_aovs,
+                             {.quarters = pipeline->estimate_options().quarters});
   if (a.frame.empty()) {
     spdlog::error("no usable pass among {} file(s); nothing written", o.passes.size());
     return kBadInput;

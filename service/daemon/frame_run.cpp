@@ -120,8 +120,9 @@ FrameRun::Outcome FrameRun::run(Input in) {
           hooks_.recovered(rec);
           in.republish = false;
         }
-      } else {
-        acc = std::make_shared<FrameAccumulator>();
+      } else {  // quarters only when the pipeline cross-validates on them (NFOR, the cascade)
+        acc = std::make_shared<FrameAccumulator>(AccumulatorOptions{
+            .quarters = FrameProcessor::estimate_options(spec.pipeline).quarters});
       }
     }
   } catch (const std::exception& e) {

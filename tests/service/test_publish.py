@@ -60,26 +60,27 @@ def channels(attrs):
 
 class PublishTest(SharedDaemonTest):
 
-    def publish(self, name, pipeline=None, **extra):
-        """A job fed CORNELL[0], CORNELL[1] by upload; returns (job id, frame status, EXR bytes)."""
+    def publish(self, name, pipeline=None, passes=2, **extra):
+        """A job fed CORNELL[0..passes-1] by upload; returns (job id, frame status, EXR bytes)."""
         if pipeline is not None:
             extra["pipeline"] = pipeline
         jid = self.d.create_job(name, **extra)
-        for p, path in (("a", CORNELL[0]), ("b", CORNELL[1])):
+        for k, path in enumerate(CORNELL[:passes]):
             with open(path, "rb") as f:
-                s, b = self.d.json("PUT", "/api/v1/jobs/%s/frames/1/passes/%s" % (jid, p), f.read())
+                s, b = self.d.json("PUT", "/api/v1/jobs/%s/frames/1/passes/%s" % (jid, "abcdefgh"[k]),
+                                   f.read())
             self.assertEqual(s, 202, b)
-        self.d.wait_passes(jid, 1, 2)
+        self.d.wait_passes(jid, 1, passes)
         s, status = self.d.frame(jid, 1)
         self.assertEqual(s, 200, status)
         s, _, exr = self.d.request("GET", "/api/v1/jobs/%s/frames/1/image?format=exr" % jid)
         self.assertEqual(s, 200)
         return jid, status, exr
 
-    def cli(self, flags, out):
-        """`proden denoise --aov` on the same two passes; returns its --json summary."""
+    def cli(self, flags, out, passes=2):
+        """`proden denoise --aov` on the same passes; returns its --json summary."""
         r = subprocess.run([BINARY, "denoise", "-q", "--aov", "--json", "--out", out] + flags +
-                           [CORNELL[0], CORNELL[1]], capture_output=True, timeout=120)
+                           CORNELL[:passes], capture_output=True, timeout=120)
         self.assertEqual(r.returncode, 0, r.stderr)
         return json.loads(r.stdout)
 
@@ -190,6 +191,7 @@ class PublishTest(SharedDaemonTest):
                     self.assertEqual(hdr["proden:inputs"], "HDR+ALB+NRM+DEP")
                     self.assertEqual(hdr["proden:divergence"], "analytic")  # its hat diagonal
                     self.assertTrue(hdr["proden:mixer"].startswith(prefix), hdr["proden:mixer"])
+                    # Two passes fill no quarters: NFOR's error is its SURE.
                     self.assertEqual(status["estimated_error"]["source"], "variance+sure")
                     published = os.path.join(tmp, "daemon_%s.exr" % mixer)
                     with open(published, "wb") as f:
@@ -207,6 +209,19 @@ class PublishTest(SharedDaemonTest):
                                        capture_output=True, timeout=60)
                     self.assertEqual(r.returncode, 0, r.stderr)
                     self.assertGreater(json.loads(r.stdout)["results"][0]["rmse"], 0.0)
+
+    def test_job_denoiser_nfor_is_cross_validated_on_quarters_like_the_cli(self):
+        """From 4 passes the daemon's NFOR frame keeps its halves' own halves (quarters) and
+        cross-validates NFOR on them (docs/error_estimate.md); the estimate is the CLI's on the
+        same passes, number for number."""
+        with tempfile.TemporaryDirectory() as tmp:
+            jid, status, exr = self.publish("pub_nfor_q", {"denoiser": "nfor"}, passes=4)
+            est = status["estimated_error"]
+            self.assertEqual(est["source"], "variance+cross-validation")
+            self.assertIn("cvsquare.R", channels(exr_header(exr)))
+            summary = self.cli(["--denoiser", "nfor"], os.path.join(tmp, "cli.exr"), passes=4)
+            for k in ("source", "mse", "relmse", "equivalent_spp", "mse_high"):
+                self.assertEqual(summary["estimated_error"][k], est[k], k)
 
     def test_job_denoiser_none_publishes_the_render(self):
         jid, status, exr = self.publish("pub_none", {"denoiser": "none"})

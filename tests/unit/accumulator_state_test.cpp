@@ -134,7 +134,7 @@ TEST_CASE("a version-1 state (no feature halves) still loads and keeps accumulat
   CHECK(eo.half_depth[1].empty());
   REQUIRE_FALSE(ef.half_albedo[0].empty());
 
-  // It keeps accumulating (feature means and spreads stay right) and saves as version 2
+  // It keeps accumulating (feature means and spreads stay right) and saves as version 3
   // without ever claiming feature halves.
   old.add(fixture_pass(3), "v1pass3");
   fresh.add(fixture_pass(3), "v1pass3");
@@ -143,10 +143,66 @@ TEST_CASE("a version-1 state (no feature halves) still loads and keeps accumulat
   check_images_close(eo4.albedo_variance, ef4.albedo_variance, 1e-9);
   CHECK(eo4.half_normal[0].empty());
   const auto blob2 = old.serialize();
-  CHECK(blob2[7] == 2);
+  CHECK(blob2[7] == 3);
   const FrameAccumulator again = FrameAccumulator::deserialize(blob2);
   CHECK_FALSE(again.feature_halves());
   CHECK(again.state_digest() == old.state_digest());
+}
+
+// tests/data/accumulator_v2.bin: written by format v2's serialize() (main at d765318, before
+// quarters) from fixture_pass(0..3) named "v2pass0".."v2pass3"; kV2Digest is that writer's
+// state_digest() of it, which the daemon stores beside the state and checks on load.
+constexpr std::uint64_t kV2Digest = 0xc79b132e2820582cULL;
+
+TEST_CASE("a version-2 state (no quarters) still loads, keeps its digest and accumulating",
+          "[accumulator][state]") {
+  const auto blob = read_fixture("accumulator_v2.bin");
+  REQUIRE(blob[7] == 2);
+  FrameAccumulator old = FrameAccumulator::deserialize(blob);
+  CHECK(old.passes() == 4);
+  CHECK(old.feature_halves());
+  CHECK_FALSE(old.quarters());
+  CHECK(old.state_digest() == kV2Digest);
+  FrameAccumulator plain, quartered({.quarters = true});
+  for (int k = 0; k < 4; ++k) {
+    plain.add(fixture_pass(k), "v2pass" + std::to_string(k));
+    quartered.add(fixture_pass(k), "v2pass" + std::to_string(k));
+  }
+  // A state without quarters has the digest it had before quarters existed.
+  CHECK(plain.state_digest() == kV2Digest);
+  CHECK(quartered.state_digest() != kV2Digest);
+  const FrameEstimate eo = old.estimate({.quarters = true});
+  const FrameEstimate eq = quartered.estimate({.quarters = true});
+  check_images_close(eo.mean, eq.mean, 0.0);
+  check_images_close(eo.half_mean[1], eq.half_mean[1], 0.0);
+  check_images_close(eo.half_normal[0], eq.half_normal[0], 0.0);
+  CHECK(eo.quarter_mean[0].empty());  // its passes' sub-halves were never kept
+  REQUIRE_FALSE(eq.quarter_mean[3].empty());
+  old.add(fixture_pass(4), "v2pass4");
+  CHECK(old.estimate({.quarters = true}).quarter_mean[0].empty());
+  const auto blob3 = old.serialize();
+  CHECK(blob3[7] == 3);
+  CHECK_FALSE(FrameAccumulator::deserialize(blob3).quarters());
+}
+
+TEST_CASE("a state with quarters round-trips and resumes bit-identically", "[accumulator][state]") {
+  FrameAccumulator a({.quarters = true});
+  for (int k = 0; k < 5; ++k) a.add(fixture_pass(k), "q" + std::to_string(k));
+  FrameAccumulator b = FrameAccumulator::deserialize(a.serialize());
+  CHECK(b.quarters());
+  CHECK(b.state_digest() == a.state_digest());
+  a.add(fixture_pass(5), "q5");
+  b.add(fixture_pass(5), "q5");
+  CHECK(b.serialize() == a.serialize());
+  const FrameEstimate ea = a.estimate({.quarters = true}), eb = b.estimate({.quarters = true});
+  for (std::size_t q = 0; q < 4; ++q) {
+    check_images_close(ea.quarter_mean[q], eb.quarter_mean[q], 0.0);
+    check_images_close(ea.quarter_albedo[q], eb.quarter_albedo[q], 0.0);
+  }
+  // A sub-half flipped into a state changes what it loads as: the checksum refuses it.
+  auto blob = a.serialize();
+  blob[blob.size() / 2] ^= 1;
+  CHECK_THROWS_AS(FrameAccumulator::deserialize(blob), InputError);
 }
 
 // A state whose checksum is intact but which holds a non-finite number (damage before the
@@ -172,8 +228,8 @@ TEST_CASE("accumulator state with a non-finite number is refused", "[accumulator
     return seal(b);
   };
   // Half A's weight vector starts after magic(8) + width(4) + height(4) + flags(1) +
-  // feature halves(1) + length(8).
-  constexpr std::size_t kFirstWeight = 26;
+  // feature halves(1) + quarters(1) + length(8).
+  constexpr std::size_t kFirstWeight = 27;
   for (double bad : {std::nan(""), std::numeric_limits<double>::infinity()}) {
     CHECK_THROWS_AS(FrameAccumulator::deserialize(with_double_at(kFirstWeight, bad)), InputError);
     // The last record's spp: before its half (i32) and three u64 counters, then the hash.

@@ -162,8 +162,7 @@ TEST_CASE("feature means and renderer variance accumulate with spp weights", "[a
   CHECK(FrameAccumulator::bytes_per_pixel(Layout{}) == 120);
 }
 
-TEST_CASE("feature halves: per-half means, full mean and spread over all passes",
-          "[accumulator]") {
+TEST_CASE("feature halves: per-half means, full mean and spread over all passes", "[accumulator]") {
   Layout feats{true, true, true, false};
   FrameAccumulator f;
   std::vector<Pass> ps;
@@ -201,6 +200,61 @@ TEST_CASE("feature halves: per-half means, full mean and spread over all passes"
   FrameAccumulator one;
   one.add(ps[0], "only");
   CHECK(one.estimate().half_albedo[0].empty());
+}
+
+TEST_CASE("quarters: each half split as a frame of only that half's passes would be",
+          "[accumulator][quarters]") {
+  Layout feats{true, true, true, false};
+  FrameAccumulator f({.quarters = true});
+  CHECK(f.quarters());
+  std::vector<Pass> ps;
+  for (int k = 0; k < 7; ++k) ps.push_back(test::make_pass(4, 3, 1 + k, 300 + k, feats));
+  for (int k = 0; k < 3; ++k) f.add(ps[k], "p" + std::to_string(k));
+  CHECK(f.estimate({.quarters = true}).quarter_mean[0].empty());  // 3 passes: quarter 3 empty
+  for (int k = 3; k < 7; ++k) f.add(ps[k], "p" + std::to_string(k));
+  const FrameEstimate e = f.estimate({.quarters = true});
+  // Pass k: half k % 2, sub-half (k / 2) % 2; quarter 2 h + s. Half A = 0, 2, 4, 6 -> quarters
+  // 0 = {0, 4}, 1 = {2, 6}; half B = 1, 3, 5 -> quarters 2 = {1, 5}, 3 = {3}.
+  const std::initializer_list<int> members[4] = {{0, 4}, {2, 6}, {1, 5}, {3}};
+  auto weighted = [&](std::initializer_list<int> ks, auto value) {
+    double s = 0, n = 0;
+    for (int k : ks) {
+      s += ps[k].spp * value(ps[k]);
+      n += ps[k].spp;
+    }
+    return std::pair{s / n, n};
+  };
+  // Per-sample variance pooled over all 7 passes (what Var[x] rests on), over the quarter's spp.
+  const double sigma2 = e.variance.at(2, 1, 0) * (1 + 2 + 3 + 4 + 5 + 6 + 7);
+  for (std::size_t q = 0; q < 4; ++q) {
+    INFO("quarter " << q);
+    REQUIRE_FALSE(e.quarter_mean[q].empty());
+    const auto [col, n] =
+        weighted(members[q], [](const Pass& p) { return double{p.colour.at(2, 1, 0)}; });
+    CHECK(e.quarter_mean[q].at(2, 1, 0) == Approx(col).epsilon(1e-6));
+    CHECK(e.quarter_variance[q].at(2, 1, 0) == Approx(sigma2 / n).epsilon(1e-5));
+    const auto [alb, n2] =
+        weighted(members[q], [](const Pass& p) { return double{p.albedo.at(1, 2, 1)}; });
+    CHECK(e.quarter_albedo[q].at(1, 2, 1) == Approx(alb).epsilon(1e-6));
+    const auto [dep, n3] =
+        weighted(members[q], [](const Pass& p) { return double{p.depth.at(3, 0, 0)}; });
+    CHECK(e.quarter_depth[q].at(3, 0, 0) == Approx(dep).epsilon(1e-6));
+    CHECK_FALSE(e.quarter_normal[q].empty());
+  }
+  // Not asked for, or not kept: none. Keeping them costs 2 x (1 + 3 + 7) doubles per pixel.
+  CHECK(f.estimate().quarter_mean[0].empty());
+  FrameAccumulator plain;
+  for (int k = 0; k < 7; ++k) plain.add(ps[k], "p" + std::to_string(k));
+  CHECK(plain.estimate({.quarters = true}).quarter_mean[0].empty());
+  CHECK(FrameAccumulator::bytes_per_pixel(feats, true) ==
+        FrameAccumulator::bytes_per_pixel(feats) + 2 * 11 * 8);
+  CHECK(f.state_bytes() == FrameAccumulator::bytes_per_pixel(feats, true) * 12);
+  // The halves and the full frame are the same with or without quarters.
+  const FrameEstimate ep = plain.estimate({.quarters = true});
+  for (std::size_t i = 0; i < e.mean.data().size(); ++i) {
+    CHECK(e.mean.data()[i] == ep.mean.data()[i]);
+    CHECK(e.half_mean[1].data()[i] == ep.half_mean[1].data()[i]);
+  }
 }
 
 TEST_CASE("NaN/Inf samples are dropped per pixel and counted, never reaching the mean",

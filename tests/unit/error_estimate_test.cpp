@@ -141,6 +141,17 @@ TEST_CASE("estimate_error: the pipeline's result error, SURE of z", "[error_esti
   const EstimatedError e =
       estimate_error({&f.mean, &f.variance, &r.result, &r.denoised, &r.alpha, &r.sure}, ctx);
   CHECK(e.relmse == Approx(r.estimated_error.relmse).epsilon(1e-12));
+  // The same terms from a SURE known to be biased low: the point values stay, the bounds go.
+  REQUIRE(e.relmse_high);
+  REQUIRE(e.equivalent_spp_low > 0);
+  ErrorInputs low{&f.mean, &f.variance, &r.result, &r.denoised, &r.alpha, &r.sure};
+  low.sure_unbounded = true;
+  const EstimatedError u = estimate_error(low, ctx);
+  CHECK(u.relmse == e.relmse);
+  CHECK(u.relmse_low == e.relmse_low);
+  CHECK_FALSE(u.relmse_high);
+  CHECK_FALSE(u.mse_high);
+  CHECK(u.equivalent_spp_low == 0);
 }
 
 TEST_CASE("estimate_error: fewer passes and frame-wide noise widen the interval",
@@ -258,9 +269,10 @@ TEST_CASE("estimate_error: relMSE of a dark noisy frame is not biased low by its
   CHECK(e.relmse / truth < 1.25);
 }
 
-TEST_CASE("estimate_error: cross-validation measures what SURE misses when the features carry "
-          "the colour's noise",
-          "[error_estimate][cross_validation]") {
+TEST_CASE(
+    "estimate_error: cross-validation measures what SURE misses when the features carry "
+    "the colour's noise",
+    "[error_estimate][cross_validation]") {
   // A textured truth; each pass's albedo is its colour's own noisy sample (the paths the colour
   // took), so NL-means' feature weights follow the colour noise, which SURE's colour-only
   // divergence does not see (here SURE's mean falls to the floor, ~0). The cross-validated
@@ -274,9 +286,10 @@ TEST_CASE("estimate_error: cross-validation measures what SURE misses when the f
   for (int c = 0; c < 3; ++c)
     for (int y = 0; y < H; ++y)
       for (int x = 0; x < W; ++x)
-        truth.at(x, y, c) = 0.5f + 0.3f * std::sin(0.9f * static_cast<float>(x)) *
-                                       std::cos(0.7f * static_cast<float>(y)) +
-                            0.05f * static_cast<float>(c);
+        truth.at(x, y, c) =
+            0.5f +
+            0.3f * std::sin(0.9f * static_cast<float>(x)) * std::cos(0.7f * static_cast<float>(y)) +
+            0.05f * static_cast<float>(c);
   std::mt19937_64 rng(17);
   std::normal_distribution<float> n(0.0f, 0.25f);
   FrameAccumulator acc;
@@ -303,4 +316,93 @@ TEST_CASE("estimate_error: cross-validation measures what SURE misses when the f
   CHECK(r.estimated_error.mse >= truth_mse / std::sqrt(2.0));
   CHECK(r.estimated_error.mse <= truth_mse * 2.0);
   CHECK(sure_only.mse < truth_mse / std::sqrt(2.0));
+}
+
+TEST_CASE("estimate_error: NFOR, which reads the halves, is cross-validated on their quarters",
+          "[error_estimate][cross_validation][nfor]") {
+  // The same frame as above (the albedo is the colour's own noisy sample), under NFOR: its SURE
+  // (the hat diagonal with the weights held fixed) misses the noise the features and the
+  // cross-filtered weights carry. Run on one half with that half's sub-halves as its halves
+  // (docs/error_estimate.md), NFOR's cross-validated error must bracket the truth as NL-means'
+  // does; without quarters (fewer than 4 passes, or a state that keeps none) the estimate says
+  // it fell back to SURE.
+  const int W = 96, H = 96;
+  Image truth(W, H, 3);
+  for (int c = 0; c < 3; ++c)
+    for (int y = 0; y < H; ++y)
+      for (int x = 0; x < W; ++x)
+        truth.at(x, y, c) =
+            0.5f +
+            0.3f * std::sin(0.9f * static_cast<float>(x)) * std::cos(0.7f * static_cast<float>(y)) +
+            0.05f * static_cast<float>(c);
+  std::mt19937_64 rng(23);
+  std::normal_distribution<float> n(0.0f, 0.25f);
+  PipelineOptions o;
+  o.denoiser = "nfor";
+  Pipeline pipe(o);
+  pipe.commit();
+  REQUIRE(pipe.estimate_options().quarters);
+  FrameAccumulator acc({.quarters = pipe.estimate_options().quarters}), plain;
+  for (int k = 0; k < 8; ++k) {
+    Pass p;
+    p.spp = 2;
+    p.colour = truth;
+    for (auto& v : p.colour.data()) v += n(rng);
+    p.albedo = p.colour;
+    acc.add(p, "p" + std::to_string(k));
+    plain.add(p, "p" + std::to_string(k));
+  }
+  ErrorContext ctx{.spp = 16, .passes = 8, .noise_scope = NoiseScope::pixel};
+  const FrameEstimate est = acc.estimate(pipe.estimate_options());
+  const PipelineResult r = pipe.execute(est, ctx);
+  REQUIRE(r.estimated_error.source == "variance+cross-validation");
+  const double truth_mse = mse(r.result, truth);
+  const EstimatedError sure_only =
+      estimate_error({&r.render, &r.variance, &r.result, &r.denoised, &r.alpha, &r.sure}, ctx);
+  INFO("true " << truth_mse << " cross-validated " << r.estimated_error.mse << " SURE "
+               << sure_only.mse);
+  CHECK(r.estimated_error.mse >= truth_mse / std::sqrt(2.0));
+  CHECK(r.estimated_error.mse <= truth_mse * 2.0);
+  CHECK(sure_only.mse < truth_mse / std::sqrt(2.0));
+
+  // The half runs read the quarters: with each half's sub-halves replaced by the half itself
+  // (no independent split), the cross-validated terms change.
+  FrameEstimate flat = acc.estimate(pipe.estimate_options());
+  for (std::size_t q = 0; q < 4; ++q) {
+    flat.quarter_mean[q] = flat.half_mean[q / 2];
+    flat.quarter_albedo[q] = flat.half_albedo[q / 2];
+  }
+  const PipelineResult rf = pipe.execute(flat, ctx);
+  REQUIRE(rf.estimated_error.source == "variance+cross-validation");
+  CHECK(rf.estimated_error.mse != r.estimated_error.mse);
+  // The published frame does not depend on the error estimate.
+  CHECK(rf.result.data()[W * H / 2] == r.result.data()[W * H / 2]);
+
+  // Cross-validated, it is bounded and can meet a target it truly meets.
+  REQUIRE(r.estimated_error.relmse_high);
+  CHECK(r.estimated_error.equivalent_spp_low > 0);
+  CHECK(meets_relmse(r.estimated_error, 10 * *r.estimated_error.relmse_high));
+  // No quarters: SURE, and it says so; being biased low, it bounds nothing from above, so no
+  // target is ever met on it.
+  const PipelineResult rp = pipe.execute(plain.estimate(pipe.estimate_options()), ctx);
+  CHECK(rp.estimated_error.source == "variance+sure");
+  CHECK(rp.estimated_error.mse == Approx(sure_only.mse).epsilon(1e-9));
+  CHECK_FALSE(rp.estimated_error.relmse_high);
+  CHECK_FALSE(rp.estimated_error.mse_high);
+  CHECK(rp.estimated_error.equivalent_spp_low == 0);
+  CHECK_FALSE(meets_relmse(rp.estimated_error, 1e9));
+  CHECK_FALSE(meets_equivalent_spp(rp.estimated_error, 1e-9));
+  FrameAccumulator three({.quarters = true});
+  for (int k = 0; k < 3; ++k) {
+    Pass p;
+    p.spp = 2;
+    p.colour = truth;
+    for (auto& v : p.colour.data()) v += n(rng);
+    p.albedo = p.colour;
+    three.add(p, "t" + std::to_string(k));
+  }
+  ctx.passes = 3;
+  ctx.spp = 6;
+  CHECK(pipe.execute(three.estimate(pipe.estimate_options()), ctx).estimated_error.source ==
+        "variance+sure");
 }

@@ -434,6 +434,12 @@ TEST_CASE("the pipeline asks the accumulator only for what its denoiser reads",
   // against half B (docs/error_estimate.md); "none" reads nothing.
   for (const auto& d : denoisers()) CHECK(reads(std::string(d.name), true).halves);
   CHECK_FALSE(reads("none", true).halves);
+  // A denoiser that reads the halves is cross-validated on a half with its quarters as halves.
+  CHECK(reads("nfor", true).quarters);
+  CHECK(reads("cascade", false).quarters);
+  CHECK_FALSE(reads("nlmeans", true).quarters);
+  CHECK_FALSE(reads("gaussian", true).quarters);
+  CHECK_FALSE(reads("none", true).quarters);
   // A frame estimated that way runs, and its inputs say what was used.
   FrameAccumulator f;
   for (std::uint64_t k = 0; k < 3; ++k) {

@@ -10,6 +10,12 @@
 // one M2 over all passes; their full mean is again the Chan combination of the halves. Memory per
 // pixel: see bytes_per_pixel().
 //
+// Quarters (optional, AccumulatorOptions::quarters): pass k also belongs to sub-half (k / 2) % 2 of
+// its half k % 2, so each half is itself split the way a frame of only that half's passes would
+// be. The error estimate cross-validates a denoiser that reads the halves (NFOR) by running it on
+// one half with these sub-halves as its halves (docs/error_estimate.md). Kept: the weight, colour
+// and feature means of sub-half 1 of each half; sub-half 0 is the half less sub-half 1.
+//
 // Non-finite policy: a pass's pixel whose colour (or renderer variance) is NaN/Inf, or whose
 // variance is negative, is dropped from that pass (all channels, counted in AddResult and
 // dropped_samples()); the pixel then has fewer passes than the frame. Non-finite feature values
@@ -47,6 +53,11 @@ struct PassRecord {
 struct EstimateOptions {
   bool halves = true;
   bool features = true;
+  bool quarters = false;  // the half buffers' own halves (needs AccumulatorOptions::quarters)
+};
+
+struct AccumulatorOptions {
+  bool quarters = false;  // keep each half's sub-halves (header comment)
 };
 
 // Float snapshots of the accumulated statistics, ready for the pipeline stages.
@@ -60,6 +71,10 @@ struct FrameEstimate {
   std::array<Image, 2> half_albedo, half_normal, half_depth;
   Image albedo, normal, depth;  // feature means (empty where the frame has none)
   Image albedo_variance, normal_variance, depth_variance;  // variance of the feature means
+  // Quarters, index 2 h + s = sub-half s of half h (empty unless asked for, kept, and every
+  // quarter holds a pass: 4 passes or more); features as for the halves.
+  std::array<Image, 4> quarter_mean, quarter_variance;
+  std::array<Image, 4> quarter_albedo, quarter_normal, quarter_depth;
   Image passes;  // 1 channel: passes that contributed to each pixel
   VarianceSource variance_source = VarianceSource::between_passes;
   std::size_t spatial_pixels = 0;  // pixels whose variance uses the spatial fallback
@@ -79,6 +94,7 @@ struct AddResult {
 class FrameAccumulator {
  public:
   FrameAccumulator() = default;  // the first pass fixes size and layout
+  explicit FrameAccumulator(AccumulatorOptions options) : quarters_(options.quarters) {}
 
   // Validates `pass` against the frame, changing nothing. Throws InputError (subject = name):
   // size_mismatch, layout_mismatch, duplicate (bit-identical colour to an accepted, non-constant
@@ -98,11 +114,14 @@ class FrameAccumulator {
   std::size_t dropped_samples() const;
 
   // Bytes of accumulated state per pixel for a layout (the documented memory cost).
-  static std::size_t bytes_per_pixel(Layout layout);
+  static std::size_t bytes_per_pixel(Layout layout, bool quarters = false);
   std::size_t state_bytes() const;
   // False for a state restored from format v1, which kept features only over all passes: such a
   // frame never gets feature halves (its earlier passes' split is lost).
   bool feature_halves() const { return feature_halves_; }
+  // True when the state keeps the halves' sub-halves (AccumulatorOptions::quarters; a state
+  // restored from format v1 or v2 has none).
+  bool quarters() const { return quarters_; }
 
   FrameEstimate estimate(const EstimateOptions& options = {}) const;
 
@@ -128,6 +147,10 @@ class FrameAccumulator {
     Moments colour;
     std::vector<double> albedo, normal, depth;  // feature means, planar (empty without the feature)
   };
+  // Sub-half 1 of a half (its passes k with (k / 2) % 2 == 1): weight and means, planar.
+  struct SubHalf {
+    std::vector<double> weight, colour, albedo, normal, depth;
+  };
   // M2 of a feature over all passes (its mean is the combination of the halves' means).
   struct FeatureSpread {
     int channels = 0;
@@ -143,6 +166,8 @@ class FrameAccumulator {
   std::array<Half, 2> halves_;
   FeatureSpread albedo_, normal_, depth_;
   bool feature_halves_ = true;
+  bool quarters_ = false;
+  std::array<SubHalf, 2> subs_;            // with quarters_: sub-half 1 of halves A and B
   std::vector<double> renderer_variance_;  // sum_k n_k^2 var_k, planar RGB
   std::vector<PassRecord> history_;
 };

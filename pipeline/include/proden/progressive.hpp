@@ -241,9 +241,11 @@ class Pipeline {
   std::string mixer_weights_ = "none";
   bool analytic_ = false;
   EstimateOptions reads_{.halves = false, .features = false};
-  // The error estimate cross-validates the denoiser on half A against half B (a denoiser that
-  // reads the halves itself, NFOR, keeps SURE: docs/error_estimate.md).
+  // The error estimate cross-validates the denoiser on each half against the other; a denoiser
+  // that reads the halves itself (NFOR) runs on a half with its quarters as its halves, and keeps
+  // SURE while the frame has no quarters (docs/error_estimate.md).
   bool cross_validate_ = false;
+  bool cv_quarters_ = false;
   int halo_ = 0;
   std::unique_ptr<Scratch> scratch_;
 };
