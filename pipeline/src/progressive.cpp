@@ -663,12 +663,11 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
   // denoiser's error cross-validated between the halves where they exist, else SURE.
   ErrorInputs ein{&x, &var, &res.result, &res.denoised, &res.alpha, &res.sure};
   // A denoiser that reads the halves has only its hat-diagonal SURE when it is not
-  // cross-validated (fewer than 4 passes, no quarters): biased low, so it bounds nothing.
+  // cross-validated (one pass: no halves): biased low, so it bounds nothing.
   ein.sure_unbounded = cv_quarters_;
   const bool have_quarters = std::all_of(frame.quarter_mean.begin(), frame.quarter_mean.end(),
                                          [](const Image& q) { return !q.empty(); });
-  if (cross_validate_ && !frame.half_mean[0].empty() && !frame.half_mean[1].empty() &&
-      (!cv_quarters_ || have_quarters)) {
+  if (cross_validate_ && !frame.half_mean[0].empty() && !frame.half_mean[1].empty()) {
     // The denoiser on each half alone, as it would run on a frame of that half's passes: x_h
     // with its own Var[x_h] (read by the weights as the full run reads its own: max(own,
     // pooled)) and its own feature means; the feature variances stay the full frame's (measured
@@ -693,11 +692,13 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
       }
       DenoiseInputs dh = denoise_inputs(frame, hs.x, *weights, reads_.features);
       for (std::size_t k = 0; k < 2; ++k) {
-        // The half's own halves are its quarters (a denoiser that reads halves; else none).
+        // The half's own halves are its quarters (a denoiser that reads halves; else none, and
+        // such a denoiser runs without halves: NFOR's single-buffer mode, docs/error_estimate.md).
         const std::size_t q = 2 * static_cast<std::size_t>(h) + k;
-        dh.half_colour[k] = cv_quarters_ ? view_of(frame.quarter_mean[q]) : View{};
-        dh.half_variance[k] = cv_quarters_ ? view_of(frame.quarter_variance[q]) : View{};
-        const bool qf = cv_quarters_ && reads_.features;
+        const bool quarters = cv_quarters_ && have_quarters;
+        dh.half_colour[k] = quarters ? view_of(frame.quarter_mean[q]) : View{};
+        dh.half_variance[k] = quarters ? view_of(frame.quarter_variance[q]) : View{};
+        const bool qf = quarters && reads_.features;
         dh.half_albedo[k] = qf ? view_of(frame.quarter_albedo[q]) : View{};
         dh.half_normal[k] = qf ? view_of(frame.quarter_normal[q]) : View{};
         dh.half_depth[k] = qf ? view_of(frame.quarter_depth[q]) : View{};

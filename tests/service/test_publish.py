@@ -191,8 +191,9 @@ class PublishTest(SharedDaemonTest):
                     self.assertEqual(hdr["proden:inputs"], "HDR+ALB+NRM+DEP")
                     self.assertEqual(hdr["proden:divergence"], "analytic")  # its hat diagonal
                     self.assertTrue(hdr["proden:mixer"].startswith(prefix), hdr["proden:mixer"])
-                    # Two passes fill no quarters: NFOR's error is its SURE.
-                    self.assertEqual(status["estimated_error"]["source"], "variance+sure")
+                    # Two passes fill no quarters: the half runs are NFOR without halves.
+                    self.assertEqual(status["estimated_error"]["source"],
+                                     "variance+cross-validation")
                     published = os.path.join(tmp, "daemon_%s.exr" % mixer)
                     with open(published, "wb") as f:
                         f.write(exr)

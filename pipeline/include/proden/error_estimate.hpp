@@ -44,9 +44,9 @@ struct ErrorInputs {
   // denoiser's error in place of SURE (which the features' noise biases low):
   const Image* cv_square = nullptr;    // ((y_A - x_B)^2 + (y_B - x_A)^2) / 2
   const Image* cv_variance = nullptr;  // (Var[x_A] + Var[x_B]) / 2
-  // Without cross-validation: the denoiser's SURE is known to be biased low (NFOR's and the
-  // cascade's hat diagonal, docs/error_estimate.md), so nothing bounds the estimate from above
-  // and no target is met on it.
+  // Without cross-validation (one pass): the denoiser's SURE is known to be biased low (NFOR's
+  // and the cascade's hat diagonal, docs/error_estimate.md), so nothing bounds the estimate from
+  // above and no target is met on it.
   bool sure_unbounded = false;
 };
 
