@@ -145,6 +145,19 @@ def write_md(cells, path, denoisers, configs):
     if ratios:
         lines.append("Geometric mean est/true: %.3f; range %.2f..%.2f.\n" % (
             math.exp(sum(map(math.log, ratios)) / len(ratios)), min(ratios), max(ratios)))
+    # Per denoiser: cells from 8 spp outside the bar, and each scene's range of est/true.
+    scenes = sorted({c["scene"] for c in cells}, key=SCENES.index)
+    lines.append("| denoiser | outside [0.67, 1.5] (too low) | " + " | ".join(scenes) + " |")
+    lines.append("|---|---|" + "---|" * len(scenes))
+    for den in denoisers:
+        mine = [c for c in inbar if c["denoiser"] == den]
+        out = [c for c in mine if not BAR[0] <= c["ratio"] <= BAR[1]]
+        row = ["%d of %d (%d)" % (len(out), len(mine), sum(c["ratio"] < BAR[0] for c in mine))]
+        for scene in scenes:
+            r = [c["ratio"] for c in mine if c["scene"] == scene]
+            row.append("%.2f-%.2f" % (min(r), max(r)) if r else "")
+        lines.append("| `%s` | %s |" % (den, " | ".join(row)))
+    lines.append("")
     with open(path, "w") as f:
         f.write("\n".join(lines))
 

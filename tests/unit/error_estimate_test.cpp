@@ -67,6 +67,46 @@ Mixed mix_with_truth(const FrameEstimate& f, const Image& truth, float a) {
   return m;
 }
 
+// A textured truth (a product of sines) for the cross-validation tests.
+Image textured_truth(int w, int h) {
+  Image truth(w, h, 3);
+  for (int c = 0; c < 3; ++c)
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x)
+        truth.at(x, y, c) =
+            0.5f +
+            0.3f * std::sin(0.9f * static_cast<float>(x)) * std::cos(0.7f * static_cast<float>(y)) +
+            0.05f * static_cast<float>(c);
+  return truth;
+}
+
+// A pass of `spp` around the truth with Gaussian noise, whose albedo is its own noisy colour (the
+// features carry the colour's noise, as the paths' first hits do).
+Pass noisy_pass(const Image& truth, std::mt19937_64& rng, float sigma, double spp) {
+  std::normal_distribution<float> n(0.0f, sigma);
+  Pass p;
+  p.spp = spp;
+  p.colour = truth;
+  for (auto& v : p.colour.data()) v += n(rng);
+  p.albedo = p.colour;
+  return p;
+}
+
+// The cross-validated estimate of a run brackets the true MSE (from truth / sqrt(2) to 2x), where
+// the same terms from SURE fall below it; returns the SURE-only estimate.
+EstimatedError check_cross_validated(const PipelineResult& r, const Image& truth,
+                                     const ErrorContext& ctx) {
+  const double truth_mse = mse(r.result, truth);
+  const EstimatedError sure_only =
+      estimate_error({&r.render, &r.variance, &r.result, &r.denoised, &r.alpha, &r.sure}, ctx);
+  INFO("true " << truth_mse << " cross-validated " << r.estimated_error.mse << " SURE "
+               << sure_only.mse);
+  CHECK(r.estimated_error.mse >= truth_mse / std::sqrt(2.0));
+  CHECK(r.estimated_error.mse <= truth_mse * 2.0);
+  CHECK(sure_only.mse < truth_mse / std::sqrt(2.0));
+  return sure_only;
+}
+
 }  // namespace
 
 TEST_CASE("estimate_error: the plain render is worth its own spp", "[error_estimate]") {
@@ -282,24 +322,11 @@ TEST_CASE(
   // (docs/error_estimate.md) and reject more, so the estimate errs high (1.7x), toward "not
   // done"; it must stay within 2x.
   const int W = 96, H = 96;
-  Image truth(W, H, 3);
-  for (int c = 0; c < 3; ++c)
-    for (int y = 0; y < H; ++y)
-      for (int x = 0; x < W; ++x)
-        truth.at(x, y, c) =
-            0.5f +
-            0.3f * std::sin(0.9f * static_cast<float>(x)) * std::cos(0.7f * static_cast<float>(y)) +
-            0.05f * static_cast<float>(c);
+  const Image truth = textured_truth(W, H);
   std::mt19937_64 rng(17);
-  std::normal_distribution<float> n(0.0f, 0.25f);
   FrameAccumulator acc;
   for (int k = 0; k < 8; ++k) {
-    Pass p;
-    p.spp = 2;
-    p.colour = truth;
-    for (auto& v : p.colour.data()) v += n(rng);
-    p.albedo = p.colour;
-    acc.add(p, "p" + std::to_string(k));
+    acc.add(noisy_pass(truth, rng, 0.25f, 2), "p" + std::to_string(k));
   }
   PipelineOptions o;
   Pipeline pipe(o);
@@ -308,14 +335,7 @@ TEST_CASE(
   const PipelineResult r = pipe.execute(acc.estimate(pipe.estimate_options()), ctx);
   REQUIRE(r.estimated_error.source == "variance+cross-validation");
   REQUIRE_FALSE(r.cv_square.empty());
-  const double truth_mse = mse(r.result, truth);
-  const EstimatedError sure_only =
-      estimate_error({&r.render, &r.variance, &r.result, &r.denoised, &r.alpha, &r.sure}, ctx);
-  INFO("true " << truth_mse << " cross-validated " << r.estimated_error.mse << " SURE "
-               << sure_only.mse);
-  CHECK(r.estimated_error.mse >= truth_mse / std::sqrt(2.0));
-  CHECK(r.estimated_error.mse <= truth_mse * 2.0);
-  CHECK(sure_only.mse < truth_mse / std::sqrt(2.0));
+  const EstimatedError sure_only = check_cross_validated(r, truth, ctx);
 }
 
 TEST_CASE("estimate_error: NFOR, which reads the halves, is cross-validated on their quarters",
@@ -327,16 +347,8 @@ TEST_CASE("estimate_error: NFOR, which reads the halves, is cross-validated on t
   // does; without quarters (fewer than 4 passes, or a state that keeps none) the estimate says
   // it fell back to SURE.
   const int W = 96, H = 96;
-  Image truth(W, H, 3);
-  for (int c = 0; c < 3; ++c)
-    for (int y = 0; y < H; ++y)
-      for (int x = 0; x < W; ++x)
-        truth.at(x, y, c) =
-            0.5f +
-            0.3f * std::sin(0.9f * static_cast<float>(x)) * std::cos(0.7f * static_cast<float>(y)) +
-            0.05f * static_cast<float>(c);
+  const Image truth = textured_truth(W, H);
   std::mt19937_64 rng(23);
-  std::normal_distribution<float> n(0.0f, 0.25f);
   PipelineOptions o;
   o.denoiser = "nfor";
   Pipeline pipe(o);
@@ -344,11 +356,7 @@ TEST_CASE("estimate_error: NFOR, which reads the halves, is cross-validated on t
   REQUIRE(pipe.estimate_options().quarters);
   FrameAccumulator acc({.quarters = pipe.estimate_options().quarters}), plain;
   for (int k = 0; k < 8; ++k) {
-    Pass p;
-    p.spp = 2;
-    p.colour = truth;
-    for (auto& v : p.colour.data()) v += n(rng);
-    p.albedo = p.colour;
+    const Pass p = noisy_pass(truth, rng, 0.25f, 2);
     acc.add(p, "p" + std::to_string(k));
     plain.add(p, "p" + std::to_string(k));
   }
@@ -356,14 +364,7 @@ TEST_CASE("estimate_error: NFOR, which reads the halves, is cross-validated on t
   const FrameEstimate est = acc.estimate(pipe.estimate_options());
   const PipelineResult r = pipe.execute(est, ctx);
   REQUIRE(r.estimated_error.source == "variance+cross-validation");
-  const double truth_mse = mse(r.result, truth);
-  const EstimatedError sure_only =
-      estimate_error({&r.render, &r.variance, &r.result, &r.denoised, &r.alpha, &r.sure}, ctx);
-  INFO("true " << truth_mse << " cross-validated " << r.estimated_error.mse << " SURE "
-               << sure_only.mse);
-  CHECK(r.estimated_error.mse >= truth_mse / std::sqrt(2.0));
-  CHECK(r.estimated_error.mse <= truth_mse * 2.0);
-  CHECK(sure_only.mse < truth_mse / std::sqrt(2.0));
+  const EstimatedError sure_only = check_cross_validated(r, truth, ctx);
 
   // The half runs read the quarters: with each half's sub-halves replaced by the half itself
   // (no independent split), the cross-validated terms change.
@@ -392,11 +393,7 @@ TEST_CASE("estimate_error: NFOR, which reads the halves, is cross-validated on t
   // One pass with the renderer's own variance: no halves, so SURE, which for NFOR is known to
   // be biased low: it bounds nothing from above, so no target is ever met on it.
   FrameAccumulator one({.quarters = true});
-  Pass p;
-  p.spp = 16;
-  p.colour = truth;
-  for (auto& v : p.colour.data()) v += n(rng) * 0.25f;
-  p.albedo = p.colour;
+  Pass p = noisy_pass(truth, rng, 0.25f * 0.25f, 16);
   p.variance = Image(W, H, 3, 0.25f * 0.25f * 0.0625f);
   one.add(p, "one");
   ctx.passes = 1;
