@@ -108,7 +108,9 @@ class Client {
     char chunk[8192];
     const auto until = Clock::now() + timeout;
     while (!p.is_done()) {
-      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(until - Clock::now());
+      // Rounded up like the wait's own time left: the stream ends at or after `until`, which is
+      // at or after the wait's deadline, never a fraction of a millisecond before it.
+      const auto left = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
       if (left.count() <= 0) return false;
       p.get().body().data = chunk;
       p.get().body().size = sizeof chunk;
@@ -268,6 +270,7 @@ int run_wait(const WaitOptions& in) {
   std::chrono::milliseconds backoff(200);
   for (;;) {
     bool following = false;  // the events stream was being read (its read ends at the deadline)
+    bool ended = false;      // the daemon closed the events stream before the deadline
     try {
       try {
         last = c.get(frame_path, left());
@@ -289,7 +292,7 @@ int run_wait(const WaitOptions& in) {
       if (expired()) break;
       bool deleted = false;
       following = true;
-      c.follow(last_id, left(), [&](const std::string& type, const json& d) {
+      ended = !c.follow(last_id, left(), [&](const std::string& type, const json& d) {
         if (!d.is_object() || d.value("job", "") != o.job) return false;
         if (type == "job" && d.value("state", "") == "deleted") {
           deleted = true;
@@ -306,14 +309,22 @@ int run_wait(const WaitOptions& in) {
       failing = true;
     } catch (const std::exception& e) {  // unreachable, reset, malformed: retry until the end
       spdlog::debug("{}: {}", o.url, e.what());
-      // The events read cut by the wait's own deadline is a timeout, not a failing daemon.
-      if (following && expired()) break;
+      // An operation cut by the wait's own deadline is the wait timing out, not a failing
+      // daemon: the events read, or a request to a daemon that has answered in this wait (it
+      // may have got only the last millisecond). A daemon never reached stays unreachable.
+      const auto* se = dynamic_cast<const beast::system_error*>(&e);
+      const bool cut = se && se->code() == beast::error::timeout;
+      if (expired() && (following || (cut && reached_once))) break;
       failing = true;
     }
     if (expired()) break;
     if (failing) {
       std::this_thread::sleep_for(std::min(backoff, left()));
       backoff = std::min(backoff * 2, std::chrono::milliseconds(5000));
+    } else if (ended) {
+      // The daemon ended the event stream (a drain, a slow-reader cut): reconnect after a pause,
+      // not in a tight loop against a daemon that keeps closing it.
+      std::this_thread::sleep_for(std::min(std::chrono::milliseconds(200), left()));
     }
   }
   if (failing) {

@@ -3,14 +3,18 @@ converges (SSE `converged` event, frame status, EXR header), keeps taking passes
 loudly when a later version misses the target with confidence; `proden wait` and its exit codes;
 the version history (GET .../history, the images kept per output.history, image?version=K); output.name's #### frame
 padding; renderer AOVs in the published EXR; view_layer; and the convergence state surviving a
-restart. Passes: the committed Cornell passes (8 x 4 spp) and, to break convergence, one of them
+restart; and `wait`'s exit code when its own deadline cuts a request short (a stalling peer on
+loopback, see StallingDaemon). Passes: the committed Cornell passes (8 x 4 spp) and, to break convergence, one of them
 with strong Gaussian noise added (oiiotool). The relMSE target is put between the estimates
 `proden denoise --json` gives for 2 and 3 passes, so the frame converges at version 3."""
+import http.server
 import json
 import os
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 import unittest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -50,6 +54,84 @@ def header(path):
         if line.startswith("channel list:"):
             out["channels"] = [c.strip() for c in line.split(":", 1)[1].split(",")]
     return out
+
+
+class StallingDaemon(http.server.ThreadingHTTPServer):
+    """What `proden wait` meets at a daemon that answers, ends its event streams at once and then
+    stalls. The real daemon does each of these (a 404 for a frame with no pass, a stream cut at a
+    drain, a reply slowed by load) but not on cue, so this peer plays them in order on loopback.
+    `stall_after` is how many frame requests it answers before the rest hang."""
+
+    daemon_threads = True
+
+    def __init__(self, stall_after):
+        self.stall_after, self.frames, self.streams = stall_after, 0, 0
+        self.lock = threading.Lock()
+        super().__init__(("127.0.0.1", 0), StallingHandler)
+        threading.Thread(target=self.serve_forever, daemon=True).start()
+
+    def close(self):
+        self.shutdown()
+        self.server_close()
+
+    @property
+    def url(self):
+        return "http://127.0.0.1:%d" % self.server_address[1]
+
+
+class StallingHandler(http.server.BaseHTTPRequestHandler):
+    def log_message(self, *a):
+        pass
+
+    def do_GET(self):
+        s = self.server
+        if self.path == "/api/v1/events":
+            with s.lock:
+                s.streams += 1
+            self.wfile.write(b"HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\n\r\n"
+                             b"retry: 2000\n\n")
+            self.close_connection = True
+            return
+        with s.lock:
+            s.frames += 1
+            stall = s.frames > s.stall_after
+        if stall:
+            time.sleep(10)
+            return
+        body = json.dumps({"error": {"code": "not_found", "message": "no frame 1"}}).encode()
+        self.send_response(404)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+
+class WaitDeadlineTest(unittest.TestCase):
+    def test_request_cut_by_the_deadline_is_a_timeout(self):
+        # One answer, the stream ends, the next request hangs past the deadline: the daemon was
+        # reached, so the wait timed out (4), it did not find the daemon failing (6).
+        s = StallingDaemon(stall_after=1)
+        self.addCleanup(s.close)
+        rc, _, err = wait_cli(None, "--job", "jfeedfeedfeed", "--frame", "1", "--timeout", "1",
+                              url=s.url)
+        self.assertEqual(rc, 4, err)
+        self.assertIn("timed out", err)
+
+    def test_never_answered_is_unreachable(self):
+        s = StallingDaemon(stall_after=0)
+        self.addCleanup(s.close)
+        rc, _, err = wait_cli(None, "--job", "jfeedfeedfeed", "--frame", "1", "--timeout", "1",
+                              url=s.url)
+        self.assertEqual(rc, 6, err)
+
+    def test_ended_streams_are_not_reopened_in_a_tight_loop(self):
+        s = StallingDaemon(stall_after=10 ** 9)
+        self.addCleanup(s.close)
+        rc, _, err = wait_cli(None, "--job", "jfeedfeedfeed", "--frame", "1", "--timeout", "1",
+                              url=s.url)
+        self.assertEqual(rc, 4, err)
+        self.assertGreaterEqual(s.streams, 2)  # it does reconnect
+        self.assertLessEqual(s.streams, 8, "event streams opened in 1 s")
 
 
 class ConvergenceTest(unittest.TestCase):
