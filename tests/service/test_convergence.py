@@ -107,28 +107,27 @@ class StallingHandler(http.server.BaseHTTPRequestHandler):
 
 
 class WaitDeadlineTest(unittest.TestCase):
-    def test_request_cut_by_the_deadline_is_a_timeout(self):
-        # One answer, the stream ends, the next request hangs past the deadline: the daemon was
-        # reached, so the wait timed out (4), it did not find the daemon failing (6).
-        s = StallingDaemon(stall_after=1)
+    def wait_on(self, stall_after):
+        """`proden wait --timeout 1` against a StallingDaemon -> (exit code, stderr, the peer)."""
+        s = StallingDaemon(stall_after)
         self.addCleanup(s.close)
         rc, _, err = wait_cli(None, "--job", "jfeedfeedfeed", "--frame", "1", "--timeout", "1",
                               url=s.url)
+        return rc, err, s
+
+    def test_request_cut_by_the_deadline_is_a_timeout(self):
+        # One answer, the stream ends, the next request hangs past the deadline: the daemon was
+        # reached, so the wait timed out (4), it did not find the daemon failing (6).
+        rc, err, _ = self.wait_on(stall_after=1)
         self.assertEqual(rc, 4, err)
         self.assertIn("timed out", err)
 
     def test_never_answered_is_unreachable(self):
-        s = StallingDaemon(stall_after=0)
-        self.addCleanup(s.close)
-        rc, _, err = wait_cli(None, "--job", "jfeedfeedfeed", "--frame", "1", "--timeout", "1",
-                              url=s.url)
+        rc, err, _ = self.wait_on(stall_after=0)
         self.assertEqual(rc, 6, err)
 
     def test_ended_streams_are_not_reopened_in_a_tight_loop(self):
-        s = StallingDaemon(stall_after=10 ** 9)
-        self.addCleanup(s.close)
-        rc, _, err = wait_cli(None, "--job", "jfeedfeedfeed", "--frame", "1", "--timeout", "1",
-                              url=s.url)
+        rc, err, s = self.wait_on(stall_after=10 ** 9)
         self.assertEqual(rc, 4, err)
         self.assertGreaterEqual(s.streams, 2)  # it does reconnect
         self.assertLessEqual(s.streams, 8, "event streams opened in 1 s")
