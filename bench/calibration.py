@@ -18,6 +18,8 @@ lies in [relmse_low, relmse_high].
         --denoisers none nlmeans --out bench/results/calibration
 
 Writes <out>.json (every cell) and <out>.md (the table included in bench/RESULTS.md).
+`--merge A.json B.json ...` runs nothing and writes <out> from earlier runs' cells (a scene per
+run, as each scene's renders finish).
 """
 import argparse
 import glob
@@ -71,7 +73,14 @@ def main():
     ap.add_argument("--denoisers", nargs="+", default=["none", "nlmeans"])
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS))
     ap.add_argument("--out", default="bench/results/calibration")
+    ap.add_argument("--merge", nargs="+", metavar="JSON",
+                    help="write <out> from these runs' cells instead of running")
     a = ap.parse_args()
+    if a.merge:
+        cells = [c for path in a.merge for c in json.load(open(path))]
+        denoisers = list(dict.fromkeys(c["denoiser"] for c in cells))
+        configs = [k for k in CONFIGS if any(c["config"] == k for c in cells)]
+        return write(cells, a.out, denoisers, configs)
     cells = []
     with tempfile.TemporaryDirectory() as tmp:
         for scene in a.scenes:
@@ -106,10 +115,14 @@ def main():
                               "mse ratio %.3f" % (scene, level, den, cfg, c["est"], c["low"],
                                                   c["high"], true, c["ratio"],
                                                   e["mse"] / true_mse), flush=True)
-    os.makedirs(os.path.dirname(os.path.abspath(a.out)), exist_ok=True)
-    with open(a.out + ".json", "w") as f:
+    write(cells, a.out, a.denoisers, a.configs)
+
+
+def write(cells, out, denoisers, configs):
+    os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+    with open(out + ".json", "w") as f:
         json.dump(cells, f, indent=1)
-    write_md(cells, a.out + ".md", a.denoisers, a.configs)
+    write_md(cells, out + ".md", denoisers, configs)
 
 
 def write_md(cells, path, denoisers, configs):
