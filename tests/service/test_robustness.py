@@ -153,8 +153,7 @@ class StopSignalTest(unittest.TestCase):
         not die of the signal. The signal is sent to each such thread directly (tgkill)."""
         import ctypes
         import signal
-        libc = ctypes.CDLL(None, use_errno=True)
-        tgkill = 234  # x86-64 syscall number
+        libc = ctypes.CDLL(None, use_errno=True)  # glibc >= 2.30 exports tgkill on every arch
         with TempRoot() as root:
             d = Daemon(root).start()
             pid = d.proc.pid
@@ -165,7 +164,7 @@ class StopSignalTest(unittest.TestCase):
                 # Without such a thread nothing else can take it: then the main thread is the test.
                 target = open_threads[0] if open_threads else pid
                 print("threads %d, not blocking SIGTERM (besides main): %s" % (len(tids), open_threads))
-                self.assertEqual(libc.syscall(tgkill, pid, target, int(signal.SIGTERM)), 0)
+                self.assertEqual(libc.tgkill(pid, target, int(signal.SIGTERM)), 0)
                 rc = d.proc.wait(timeout=30)
             finally:
                 d.stop()
