@@ -163,6 +163,7 @@ int run_denoise(const DenoiseOptions& o) {
                   {"mixer_cpu", tm.mixer},
                   {"ttest_cpu", tm.ttest},
                   {"compose_cpu", tm.compose},
+                  {"cross_validation_cpu", tm.cross_validation},
                   {"write", write_s},
                   {"total", total_s}};
 
@@ -204,9 +205,10 @@ int run_denoise(const DenoiseOptions& o) {
     if (o.timings) {
       std::fprintf(stderr,
                    "timings (s): read+accumulate %.3f | pipeline wall %.3f (cpu: denoise %.3f, "
-                   "sure %.3f, mixer %.3f, t-test %.3f, compose %.3f) | write %.3f | total %.3f\n",
+                   "sure %.3f, mixer %.3f, t-test %.3f, compose %.3f, cross-validation %.3f) | "
+                   "write %.3f | total %.3f\n",
                    accumulate_s, pipeline_s, tm.denoise, tm.sure, tm.mixer, tm.ttest, tm.compose,
-                   write_s, total_s);
+                   tm.cross_validation, write_s, total_s);
     }
   }
   return a.rejected > 0 ? kBadInput : kOk;

@@ -60,8 +60,13 @@ ProcessedFrame FrameProcessor::process(const FrameAccumulator& frame, const Fram
   out.render_mse = n ? var_sum / static_cast<double>(n) : 0.0;
   if (!out.run.denoised.empty()) {
     const StageTimings& t = out.run.timings;
-    out.stage_seconds = {{"denoise", t.denoise}, {"sure", t.sure},       {"mix", t.mixer},
-                         {"ttest", t.ttest},     {"compose", t.compose}, {"pipeline", t.wall}};
+    out.stage_seconds = {{"denoise", t.denoise},
+                         {"sure", t.sure},
+                         {"mix", t.mixer},
+                         {"ttest", t.ttest},
+                         {"compose", t.compose},
+                         {"pipeline", t.wall},
+                         {"cross_validation", t.cross_validation}};
   }
   return out;
 }

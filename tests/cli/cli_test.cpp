@@ -340,8 +340,8 @@ TEST_CASE("denoise --denoiser nfor runs NFOR under both mixers and names it in t
   for (const std::string mixer : {"closed-form", "network"}) {
     INFO("mixer " << mixer);
     const std::string out = s.file("nfor_" + mixer + ".exr");
-    const Run d = proden("denoise -q --aov --json --denoiser nfor --mixer " + mixer + " --out " +
-                             out + join(passes("cornell")),
+    const Run d = proden("denoise -q --aov --json --timings --denoiser nfor --mixer " + mixer +
+                             " --out " + out + join(passes("cornell")),
                          s);
     INFO(d.err);
     REQUIRE(d.code == 0);
@@ -350,6 +350,8 @@ TEST_CASE("denoise --denoiser nfor runs NFOR under both mixers and names it in t
     CHECK(j["inputs_used"] == "HDR+ALB+NRM+DEP");
     // The sample's passes fill every quarter: NFOR is cross-validated on them.
     CHECK(j["estimated_error"]["source"] == "variance+cross-validation");
+    // ... and what that costs is its own stage (NFOR's two half runs).
+    CHECK(j["timings"]["cross_validation_cpu"].get<double>() > 0.0);
     const auto hdr = string_attributes(out);
     CHECK(hdr.at("proden:denoiser") == "nfor");
     CHECK(hdr.at("proden:divergence") == "analytic");  // NFOR's hat diagonal (docs/nfor.md)
