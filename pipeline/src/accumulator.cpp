@@ -294,14 +294,50 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
   e.mean = Image(width_, height_, 3);
   e.variance = Image(width_, height_, 3);
   e.passes = Image(width_, height_, 1);
+  // The halves are written in the same pass over the state as the frame (one read of it); the
+  // quarters, rarer, read sigma^2 N per element back from `per_sample_var`.
+  const bool halves = options.halves && passes() >= 2;
+  const bool quarters = halves && options.quarters && quarters_ && passes() >= 4;
+  if (halves) {
+    for (std::size_t h = 0; h < 2; ++h) {
+      e.half_mean[h] = Image(width_, height_, 3);
+      e.half_variance[h] = Image(width_, height_, 3);
+    }
+  }
   std::vector<unsigned char> spatial(n, 0), hole(n, 0);
-  std::vector<double> per_sample_var(3 * n, 0.0);  // sigma^2, for the half buffers
+  std::vector<double> per_sample_var(quarters ? 3 * n : 0);  // sigma^2 N
+
+  // Element i of each output plane, set once per pixel and channel. For the halves: a half
+  // without a sample at the pixel (non-finite drops) falls back to the frame's estimate.
+  std::array<float*, 3> mean_c{}, var_c{};
+  std::array<std::array<float*, 3>, 2> half_mean_c{}, half_var_c{};
+  for (int c = 0; c < 3; ++c) {
+    mean_c[c] = e.mean.plane(c).data();
+    var_c[c] = e.variance.plane(c).data();
+    for (std::size_t h = 0; halves && h < 2; ++h) {
+      half_mean_c[h][c] = e.half_mean[h].plane(c).data();
+      half_var_c[h][c] = e.half_variance[h].plane(c).data();
+    }
+  }
+  float* const passes_p = e.passes.plane(0).data();
+  // Pixel p, channel c, once its (mean, var) are final: the quarters' sigma^2 N and the halves.
+  const auto finish = [&](std::size_t p, int c, double psv) {
+    const std::size_t i = static_cast<std::size_t>(c) * n + p;
+    if (quarters) per_sample_var[i] = psv;
+    if (!halves) return;
+    for (std::size_t h = 0; h < 2; ++h) {
+      const double hw = halves_[h].weight[p];
+      const bool has = hw > 0.0;
+      half_mean_c[h][c][p] = has ? to_float(halves_[h].colour.mean[i]) : mean_c[c][p];
+      half_var_c[h][c][p] = has ? to_float(psv / hw) : var_c[c][p];
+    }
+  };
 
   parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
     for (std::size_t p = begin; p < end; ++p) {
       const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
       const std::uint32_t k = a.count[p] + b.count[p];
-      e.passes.plane(0)[p] = static_cast<float>(k);
+      passes_p[p] = static_cast<float>(k);
       if (w <= 0.0) {
         hole[p] = 1;
         continue;
@@ -318,11 +354,11 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
         } else if (k >= 2) {
           var = std::max(m2, 0.0) / (k - 1) / w;
         } else {
-          spatial[p] = 1;
+          spatial[p] = 1;  // its variance, and so its halves, come from the spatial pass below
         }
-        e.mean.plane(c)[p] = to_float(mean);
-        e.variance.plane(c)[p] = to_float(var);
-        per_sample_var[i] = var * w;
+        mean_c[c][p] = to_float(mean);
+        var_c[c][p] = to_float(var);
+        if (!spatial[p]) finish(p, c, var * w);
       }
     }
   });
@@ -378,7 +414,7 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
         double var = m * m;  // a lone pixel (1x1 frame): assume 100 % relative error
         if (cnt >= 2) var = std::max(0.0, (s2 - s1 * s1 / cnt) / (cnt - 1));
         e.variance.plane(c)[p] = to_float(var);
-        per_sample_var[static_cast<std::size_t>(c) * n + p] = var * (w > 0.0 ? w : 1.0);
+        finish(p, c, var * (w > 0.0 ? w : 1.0));
       }
     }
   }
@@ -391,35 +427,24 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
     e.variance_source = VarianceSource::between_passes;
   }
 
-  if (options.halves && passes() >= 2) {
-    for (std::size_t h = 0; h < 2; ++h) {
-      e.half_mean[h] = Image(width_, height_, 3);
-      e.half_variance[h] = Image(width_, height_, 3);
-      const Half& half = halves_[h];
-      parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
-        for (std::size_t p = begin; p < end; ++p) {
-          for (int c = 0; c < 3; ++c) {
-            const std::size_t i = static_cast<std::size_t>(c) * n + p;
-            // A half without a sample here (non-finite drops) falls back to the full estimate.
-            const bool has = half.weight[p] > 0.0;
-            e.half_mean[h].plane(c)[p] = has ? to_float(half.colour.mean[i]) : e.mean.plane(c)[p];
-            e.half_variance[h].plane(c)[p] =
-                has ? to_float(per_sample_var[i] / half.weight[p]) : e.variance.plane(c)[p];
-          }
-        }
-      });
-    }
-  }
-
   if (options.features) {
-    const bool halves = !e.half_mean[0].empty() && feature_halves_;
+    const bool feature_halves = halves && feature_halves_;
     auto features = [&](const FeatureSpread& s, std::vector<double> Half::*mean_of, Image& mean,
                         Image& var, std::array<Image, 2>& half_means) {
       if (s.channels == 0) return;
       mean = Image(width_, height_, s.channels);
       var = Image(width_, height_, s.channels);
-      if (halves) {
+      if (feature_halves) {
         for (auto& h : half_means) h = Image(width_, height_, s.channels);
+      }
+      std::array<float*, 3> mean_f{}, var_f{}, half_a{}, half_b{};
+      for (int c = 0; c < s.channels; ++c) {
+        mean_f[c] = mean.plane(c).data();
+        var_f[c] = var.plane(c).data();
+        if (feature_halves) {
+          half_a[c] = half_means[0].plane(c).data();
+          half_b[c] = half_means[1].plane(c).data();
+        }
       }
       const std::vector<double>& ma = a.*mean_of;
       const std::vector<double>& mb = b.*mean_of;
@@ -430,11 +455,11 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
           for (int c = 0; c < s.channels; ++c) {
             const std::size_t i = static_cast<std::size_t>(c) * n + p;
             const double m = w > 0.0 ? (wa * ma[i] + wb * mb[i]) / w : 0.0;
-            mean.plane(c)[p] = to_float(m);
-            var.plane(c)[p] = k >= 2 ? to_float(std::max(s.m2[i], 0.0) / (k - 1) / w) : 0.0f;
-            if (halves) {  // a half without a sample here falls back to the full mean
-              half_means[0].plane(c)[p] = to_float(wa > 0.0 ? ma[i] : m);
-              half_means[1].plane(c)[p] = to_float(wb > 0.0 ? mb[i] : m);
+            mean_f[c][p] = to_float(m);
+            var_f[c][p] = k >= 2 ? to_float(std::max(s.m2[i], 0.0) / (k - 1) / w) : 0.0f;
+            if (feature_halves) {  // a half without a sample here falls back to the full mean
+              half_a[c][p] = to_float(wa > 0.0 ? ma[i] : m);
+              half_b[c][p] = to_float(wb > 0.0 ? mb[i] : m);
             }
           }
         }
@@ -447,7 +472,7 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
 
   // Quarters: sub-half 1 is kept, sub-half 0 is the half less it. A quarter without a sample at
   // a pixel (non-finite drops) falls back to its half there, as a half falls back to the frame.
-  if (options.quarters && quarters_ && passes() >= 4 && !e.half_mean[0].empty()) {
+  if (quarters) {
     // Plane c of quarter 2h+s of a quantity with `channels` channels: the half's mean `hm`, the
     // sub-half's `sm`, the half's published image `fallback` where the quarter is empty.
     auto quarter = [&](std::size_t h, int s, const std::vector<double>& hm,

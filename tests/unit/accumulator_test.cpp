@@ -297,6 +297,52 @@ TEST_CASE("a pixel every pass dropped is a flagged hole filled from its neighbou
   CHECK(std::isfinite(e.variance.at(1, 1, 0)));
 }
 
+TEST_CASE("a half without a sample at a pixel falls back to the frame's estimate there",
+          "[accumulator][nonfinite]") {
+  // Passes a, c go to half A, b, d to half B. Pixel (1, 1): half B's passes dropped it (A has
+  // two samples). Pixel (2, 2): both of half A's dropped it, one sample left: a spatial pixel.
+  // Pixel (0, 3): every pass dropped it, a hole.
+  FrameAccumulator f;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const float value[4] = {1, 3, 2, 5};
+  for (int k = 0; k < 4; ++k) {
+    Pass p = constant_pass(4, 4, 1, value[k], value[k] + 1, value[k] + 2);
+    p.colour.at(1, 1, 0) = p.colour.at(0, 0, 0) + 0.25f * static_cast<float>(k);
+    if (k % 2 == 1) p.colour.at(1, 1, 1) = nan;
+    if (k % 2 == 0) p.colour.at(2, 2, 2) = nan;
+    if (k == 3) p.colour.at(2, 2, 0) = nan;
+    p.colour.at(0, 3, 0) = nan;
+    f.add(p, "p" + std::to_string(k));
+  }
+  const FrameEstimate e = f.estimate();
+  REQUIRE(!e.half_mean[0].empty());
+  CHECK(e.hole_pixels == 1);
+  CHECK(e.spatial_pixels == 2);  // the hole and (2, 2)
+  for (int c = 0; c < 3; ++c) {
+    // (1, 1): half A keeps its own two samples, half B is the frame's (= half A's) estimate.
+    CHECK(e.half_mean[0].at(1, 1, c) == e.mean.at(1, 1, c));
+    CHECK(e.half_mean[1].at(1, 1, c) == e.mean.at(1, 1, c));
+    CHECK(e.half_variance[1].at(1, 1, c) == e.variance.at(1, 1, c));
+    CHECK(e.half_variance[0].at(1, 1, c) == Approx(e.variance.at(1, 1, c)));
+    // (2, 2): half A has no sample, half B's one sample is the frame's; both carry the
+    // spatial variance (half B's as sigma^2 N / N_B with N_B = N).
+    CHECK(e.half_mean[0].at(2, 2, c) == e.mean.at(2, 2, c));
+    CHECK(e.half_variance[0].at(2, 2, c) == e.variance.at(2, 2, c));
+    CHECK(e.half_mean[1].at(2, 2, c) == e.mean.at(2, 2, c));
+    CHECK(e.half_variance[1].at(2, 2, c) == Approx(e.variance.at(2, 2, c)));
+    CHECK(e.variance.at(2, 2, c) > 0.0f);
+    // The hole: both halves are the filled mean and its spatial variance.
+    for (int h = 0; h < 2; ++h) {
+      CHECK(e.half_mean[h].at(0, 3, c) == e.mean.at(0, 3, c));
+      CHECK(e.half_variance[h].at(0, 3, c) == e.variance.at(0, 3, c));
+    }
+  }
+  // A pixel every pass kept: each half's own mean of its two passes, Var = 2 x the frame's.
+  CHECK(e.half_mean[0].at(3, 0, 0) == Approx(1.5));
+  CHECK(e.half_mean[1].at(3, 0, 0) == Approx(4.0));
+  CHECK(e.mean.at(3, 0, 0) == Approx(2.75));
+}
+
 TEST_CASE("non-finite feature values are sanitised, colour kept", "[accumulator][nonfinite]") {
   Layout l{false, false, true, false};
   Pass p = test::make_pass(2, 2, 1, 1, l);
