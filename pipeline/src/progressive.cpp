@@ -1,5 +1,6 @@
 #include "proden/progressive.hpp"
 
+#include <tbb/blocked_range.h>
 #include <tbb/combinable.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
@@ -39,23 +40,46 @@ constexpr float kMaxVariance = 1e36f;
 // GaussianDenoiser's supported sigmas (its radius 3 sigma must stay <= 64).
 constexpr float kMaxGaussianSigma = 21.0f;
 
+// body(begin, end) over [0, n) in parallel chunks: for the frame-wide element-wise passes around
+// the stages, each element written by one task (the same values as one serial loop).
+template <class F>
+void parallel_elements(std::size_t n, F&& body) {
+  constexpr std::size_t kGrain = std::size_t{1} << 16;
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, kGrain),
+                    [&](const tbb::blocked_range<std::size_t>& r) { body(r.begin(), r.end()); });
+}
+
+// `dst` shaped like `src`, keeping its allocation when it already is.
+void shape_like(const Image& src, Image& dst) {
+  if (!dst.same_size(src) || dst.channels() != src.channels()) {
+    dst = Image(src.width(), src.height(), src.channels());
+  }
+}
+
 // Copies `src` into `dst` (reusing dst's allocation when the size matches) with non-finite values
 // set to 0 and the rest clamped to [lo, hi].
 inline float sanitized(float v, float lo, float hi) {
   return std::isfinite(v) ? std::clamp(v, lo, hi) : 0.0f;
 }
 void sanitize_into(const Image& src, float lo, float hi, Image& dst) {
-  dst = src;
-  for (float& v : dst.data()) v = sanitized(v, lo, hi);
+  shape_like(src, dst);
+  const auto s = src.data();
+  const auto d = dst.data();
+  parallel_elements(s.size(), [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i) d[i] = sanitized(s[i], lo, hi);
+  });
 }
 
 // Var[x] as the denoiser's weights read it when it is estimated between passes (docs/pipeline.md,
 // "Few passes"): max(own, pooled), into `out`.
 void weights_variance(const Image& own, const Image& pooled, Image& out) {
-  out = own;
+  shape_like(own, out);
+  const auto v = own.data();
   const auto p = pooled.data();
-  auto o = out.data();
-  for (std::size_t i = 0; i < o.size(); ++i) o[i] = std::max(o[i], p[i]);
+  const auto o = out.data();
+  parallel_elements(o.size(), [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i) o[i] = std::max(v[i], p[i]);
+  });
 }
 
 bool all_zero(const Image& img) {
@@ -681,9 +705,11 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
       Scratch::Half& hs = s.cv;
       sanitize_into(frame.half_mean[h], -kMaxValue, kMaxValue, hs.x);
       sanitize_into(frame.half_variance[h], 0.0f, kMaxVariance, hs.var);
-      auto qv = res.cv_variance.data();
+      const auto qv = res.cv_variance.data();
       const auto vh = hs.var.data();
-      for (std::size_t i = 0; i < qv.size(); ++i) qv[i] += 0.5f * vh[i];
+      parallel_elements(qv.size(), [&](std::size_t b, std::size_t e) {
+        for (std::size_t i = b; i < e; ++i) qv[i] += 0.5f * vh[i];
+      });
       const Image* weights = &hs.var;
       if (estimated_variance) {
         pool_variance(hs.var, o.variance_pool_radius, s.box_tmp, hs.pooled);
@@ -725,18 +751,16 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
         res.timings.cross_validation += cpu.combine(std::plus<double>());
       }
       const Image& other = frame.half_mean[static_cast<std::size_t>(1 - h)];
-      for (int c = 0; c < 3; ++c) {
-        const auto xo = other.plane(c);
-        auto q = res.cv_square.plane(c);
-        for (int py = 0; py < H; ++py) {
-          const float* yh = hs.y.row(py, c);
-          for (int px = 0; px < W; ++px) {
-            const std::size_t i = static_cast<std::size_t>(py) * W + px;
-            const double d = static_cast<double>(yh[px]) - sanitized(xo[i], -kMaxValue, kMaxValue);
-            q[i] = static_cast<float>(std::min(q[i] + 0.5 * d * d, double{kMaxVariance}));
-          }
+      tbb::parallel_for(0, 3 * H, [&](int row) {
+        const int c = row / H, py = row % H;
+        const float* xo = other.plane(c).data() + static_cast<std::size_t>(py) * W;
+        float* q = res.cv_square.plane(c).data() + static_cast<std::size_t>(py) * W;
+        const float* yh = hs.y.row(py, c);
+        for (int px = 0; px < W; ++px) {
+          const double d = static_cast<double>(yh[px]) - sanitized(xo[px], -kMaxValue, kMaxValue);
+          q[px] = static_cast<float>(std::min(q[px] + 0.5 * d * d, double{kMaxVariance}));
         }
-      }
+      });
     }
     ein.cv_square = &res.cv_square;
     ein.cv_variance = &res.cv_variance;

@@ -1,5 +1,6 @@
 #include "proden/tstat.hpp"
 
+#include <tbb/parallel_for.h>
 #include <boost/math/distributions/normal.hpp>
 #include <boost/math/distributions/students_t.hpp>
 
@@ -294,24 +295,26 @@ void pool_variance(const Image& img, int r, Image& tmp, Image& out) {
   const int W = img.width(), H = img.height();
   if (!tmp.same_size(img) || tmp.channels() != img.channels()) tmp = Image(W, H, img.channels());
   if (!out.same_size(img) || out.channels() != img.channels()) out = Image(W, H, img.channels());
-  for (int c = 0; c < img.channels(); ++c) {
-    for (int y = 0; y < H; ++y) {
-      for (int x = 0; x < W; ++x) {
-        double s = 0;
-        const int a = std::max(x - r, 0), b = std::min(x + r + 1, W);
-        for (int q = a; q < b; ++q) s += img.at(q, y, c);
-        tmp.at(x, y, c) = static_cast<float>(s / (b - a));
-      }
+  // Rows in parallel, each output written by one task: the same sums as one serial loop.
+  const int rows = H * img.channels();
+  tbb::parallel_for(0, rows, [&](int row) {
+    const int c = row / H, y = row % H;
+    for (int x = 0; x < W; ++x) {
+      double s = 0;
+      const int a = std::max(x - r, 0), b = std::min(x + r + 1, W);
+      for (int q = a; q < b; ++q) s += img.at(q, y, c);
+      tmp.at(x, y, c) = static_cast<float>(s / (b - a));
     }
-    for (int y = 0; y < H; ++y) {
-      const int a = std::max(y - r, 0), b = std::min(y + r + 1, H);
-      for (int x = 0; x < W; ++x) {
-        double s = 0;
-        for (int q = a; q < b; ++q) s += tmp.at(x, q, c);
-        out.at(x, y, c) = static_cast<float>(s / (b - a));
-      }
+  });
+  tbb::parallel_for(0, rows, [&](int row) {
+    const int c = row / H, y = row % H;
+    const int a = std::max(y - r, 0), b = std::min(y + r + 1, H);
+    for (int x = 0; x < W; ++x) {
+      double s = 0;
+      for (int q = a; q < b; ++q) s += tmp.at(x, q, c);
+      out.at(x, y, c) = static_cast<float>(s / (b - a));
     }
-  }
+  });
 }
 
 Image pool_variance(const Image& img, int r) {

@@ -3,8 +3,10 @@
 // the statistic and its Welch-Satterthwaite degrees of freedom against a brute-force evaluation
 // of their definitions, and the calibration: an unbiased mix of frames made of K passes is
 // rejected at the nominal rate, a biased one is rejected.
+#include <tbb/global_control.h>
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <random>
@@ -161,6 +163,43 @@ TStatistic brute_force(const Image& x, const Image& raw_var, const Image& passes
 }
 
 }  // namespace
+
+TEST_CASE("pool_variance is the clamped box mean, the same at any thread count", "[ttest][pool]") {
+  // Rows run in parallel: every output must be the serial separable mean, bit for bit.
+  const int W = 67, H = 41, C = 3, r = 2;
+  std::mt19937 rng(5);
+  std::exponential_distribution<float> e(1.0f);
+  Image v(W, H, C);
+  for (float& f : v.data()) f = e(rng);
+  const Image many = pool_variance(v, r);
+  Image one;
+  {
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, 1);
+    one = pool_variance(v, r);
+  }
+  std::size_t differ = 0;
+  double worst = 0.0;
+  for (int c = 0; c < C; ++c) {
+    for (int y = 0; y < H; ++y) {
+      for (int x = 0; x < W; ++x) {
+        differ += many.at(x, y, c) != one.at(x, y, c);
+        // The definition: the mean over the window clipped to the frame, rows then columns.
+        double col = 0.0;
+        const int y0 = std::max(y - r, 0), y1 = std::min(y + r + 1, H);
+        const int x0 = std::max(x - r, 0), x1 = std::min(x + r + 1, W);
+        for (int q = y0; q < y1; ++q) {
+          double row = 0.0;
+          for (int p = x0; p < x1; ++p) row += v.at(p, q, c);
+          col += static_cast<float>(row / (x1 - x0));
+        }
+        const double want = col / (y1 - y0);
+        worst = std::max(worst, std::abs(many.at(x, y, c) - want) / want);
+      }
+    }
+  }
+  CHECK(differ == 0);
+  CHECK(worst < 1e-6);
+}
 
 TEST_CASE("the statistic and its Welch-Satterthwaite dof equal their definitions", "[ttest][dof]") {
   const int W = 23, H = 19, pool = 2;
