@@ -4,6 +4,8 @@
 #include <OpenImageIO/imageio.h>
 #include <fcntl.h>
 #include <sys/stat.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -129,11 +131,17 @@ void write_image_at(int dir_fd, const std::string& name, int width, int height,
   spec.attribute("compression", options.compression);
   for (const auto& [k, v] : options.attributes) spec.attribute(k, v);
 
+  // Planes to OIIO's interleaved pixels, blocks of pixels in parallel (a published 1080p frame
+  // is 27 planes, 220 MB: one thread spent ~0.4 s here, ahead of the threaded compression).
   std::vector<float> interleaved(n * static_cast<std::size_t>(nch));
-  for (std::size_t c = 0; c < channels.size(); ++c) {
-    const auto d = channels[c].data;
-    for (std::size_t p = 0; p < n; ++p) interleaved[p * channels.size() + c] = d[p];
-  }
+  const std::size_t stride = channels.size();
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
+                    [&](const tbb::blocked_range<std::size_t>& r) {
+                      for (std::size_t p = r.begin(); p < r.end(); ++p) {
+                        float* px = interleaved.data() + p * stride;
+                        for (std::size_t c = 0; c < stride; ++c) px[c] = channels[c].data[p];
+                      }
+                    });
   bool ok = out->set_ioproxy(&proxy) && out->open(tmp, spec) &&
             out->write_image(OIIO::TypeDesc::FLOAT, interleaved.data());
   std::string err = ok ? "" : out->geterror();
