@@ -74,17 +74,13 @@ Engine::Engine(const Config& config, const Roots& roots, Metrics& metrics, Event
   };
   watcher_ = std::make_unique<Watcher>(config_.watch, roots_, std::move(cb));
   scheduler_ = std::make_unique<Scheduler>(
-      config_.worker_threads,
-      [this](const std::string& job, long frame) {
-        // A run's temporaries (decoded passes, the pipeline's buffers) are freed when it ends:
-        // give their pages back, so resident memory does not ratchet up run after run.
-        struct Trim {
-          MemoryTrimmer& t;
-          ~Trim() { t.maybe_trim(); }
-        } trim{trimmer_};
-        run_frame(job, frame);
-      },
+      config_.worker_threads, [this](const std::string& job, long frame) { run_frame(job, frame); },
       &metrics_, clock_);
+  // Runs' temporaries (decoded passes, the estimate, the pipeline's planes) are freed into the
+  // heap, where the next run reuses their pages while the farm keeps the daemon busy; once it is
+  // idle they go back to the system, so an idle daemon's resident memory follows what it holds
+  // (daemon/memory.hpp).
+  scheduler_->on_idle([this] { trimmer_.maybe_trim(); });
 }
 
 Engine::~Engine() {

@@ -164,7 +164,7 @@ class Engine {
   RetryPolicy retry_;
   PreviewCache previews_;
   std::unique_ptr<Watcher> watcher_;
-  MemoryTrimmer trimmer_{std::chrono::seconds(1)};  // after runs (daemon/memory.hpp)
+  MemoryTrimmer trimmer_{std::chrono::seconds(1)};  // when the scheduler goes idle (memory.hpp)
   std::unique_ptr<Scheduler> scheduler_;
   std::unique_ptr<tbb::global_control> pipeline_threads_;  // config.pipeline_threads > 0
 

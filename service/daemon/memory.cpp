@@ -1,6 +1,7 @@
 #include "daemon/memory.hpp"
 
 #include <algorithm>
+#include <climits>
 #include <cstdio>
 #include <mutex>
 
@@ -26,14 +27,16 @@ std::mutex trim_mu;  // one trim at a time: concurrent ones would only contend f
 
 }  // namespace
 
-void configure_allocator(std::size_t mmap_threshold, int arenas) {
+void configure_allocator(std::size_t mmap_threshold, std::size_t trim_threshold, int arenas) {
 #if defined(__GLIBC__)
   const int threshold = static_cast<int>(std::min<std::size_t>(mmap_threshold, 1u << 25));
+  const int trim = static_cast<int>(std::min<std::size_t>(trim_threshold, INT_MAX));
   ::mallopt(M_MMAP_THRESHOLD, threshold);
-  ::mallopt(M_TRIM_THRESHOLD, 2 * threshold);
+  ::mallopt(M_TRIM_THRESHOLD, trim);
   if (arenas > 0) ::mallopt(M_ARENA_MAX, arenas);
 #else
   (void)mmap_threshold;
+  (void)trim_threshold;
   (void)arenas;
 #endif
 }

@@ -1,6 +1,6 @@
-// Gives the heap's free pages back to the system, so that the daemon's resident memory follows
-// what it holds rather than the high-water mark of its largest frame run (glibc keeps freed
-// memory in per-thread arenas otherwise; bench/results/soak.md measured the difference).
+// Gives the heap's free pages back to the system, so that an idle daemon's resident memory
+// follows what it holds rather than the high-water mark of its largest frame run (glibc keeps
+// freed memory in per-thread arenas otherwise; bench/results/soak.md measured the difference).
 #pragma once
 
 #include <atomic>
@@ -10,11 +10,12 @@
 namespace proden::daemon {
 
 // Fixes glibc's thresholds (call once at start-up, before threads): blocks of at least
-// `mmap_threshold` bytes are mapped and unmapped on free, freed memory at an arena's top beyond
-// 2 x that is returned, and at most `arenas` arenas are made (default 8 per core). Without it,
-// glibc raises both thresholds to the largest block freed so far (OIIO's scanline reads free
-// buffers of about 20 MB per pass), after which such blocks stay in every worker's arena.
-void configure_allocator(std::size_t mmap_threshold, int arenas);
+// `mmap_threshold` bytes (at most 32 MiB, glibc's ceiling) are mapped and unmapped on free,
+// smaller ones come from the arenas; an arena's free top is returned on free only beyond
+// `trim_threshold` (else by release_free_memory); at most `arenas` arenas are made (default 8 per
+// core). Without it, glibc raises both thresholds to the largest block freed so far (OIIO's
+// scanline reads free buffers of about 20 MB per pass), and trims whenever the top allows.
+void configure_allocator(std::size_t mmap_threshold, std::size_t trim_threshold, int arenas);
 
 // Returns free heap pages to the system (malloc_trim): the bytes of resident memory released,
 // as measured from /proc/self/statm (0 where that is not available). No-op without glibc.

@@ -218,6 +218,7 @@ void Scheduler::worker() {
       metrics_->inc("proden_worker_busy_seconds_total", {},
                     std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     }
+    bool idle = false;
     {
       std::lock_guard lock(mu_);
       --running_;
@@ -246,8 +247,10 @@ void Scheduler::worker() {
         }
       }
       update_gauges();
+      idle = running_ == 0 && rotation_.empty();
     }
     idle_cv_.notify_all();
+    if (idle && on_idle_) on_idle_();
   }
 }
 

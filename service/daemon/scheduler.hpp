@@ -33,6 +33,10 @@ class Scheduler {
   Scheduler(const Scheduler&) = delete;
   Scheduler& operator=(const Scheduler&) = delete;
 
+  // Called on a worker, without the lock, each time the scheduler goes idle (the wait_idle
+  // condition: nothing runs, no frame of an active job is ready). Set before start().
+  void on_idle(std::function<void()> hook) { on_idle_ = std::move(hook); }
+
   void start();
   // Stops taking frames: queued frames stay queued, running ones finish; joins the workers.
   void stop();
@@ -75,6 +79,7 @@ class Scheduler {
 
   int workers_count_;
   Run run_;
+  std::function<void()> on_idle_;
   Metrics* metrics_;
   const Clock& clock_;
   mutable std::mutex mu_;

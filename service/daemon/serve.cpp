@@ -11,6 +11,7 @@
 
 #include <atomic>
 #include <cerrno>
+#include <climits>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -203,9 +204,11 @@ int run_serve(Config c, const std::string& token) {
   ::pthread_sigmask(SIG_BLOCK, &set, nullptr);
   ::signal(SIGPIPE, SIG_IGN);
 
-  // Resident memory that follows what the daemon holds (daemon/memory.hpp): blocks of 1 MiB and
-  // more (decoded passes, scanline buffers, pipeline planes) are unmapped when freed.
-  configure_allocator(std::size_t{1} << 20, 4);
+  // Frame-sized planes (up to 32 MiB: 1080p and below) stay in the heap while the daemon is busy,
+  // so a run reuses the pages of the one before it instead of faulting ~1.2 GB in afresh (the
+  // kernel zeroes every page: +40-50 % on a 1080p update, bench/RESULTS.md "Heap policy");
+  // the engine returns them once the scheduler is idle (daemon/memory.hpp, engine.cpp).
+  configure_allocator(std::size_t{32} << 20, std::size_t{INT_MAX}, 4);
 
   Metrics metrics;
   EventHub events(c.limits.sse_history);

@@ -2,9 +2,11 @@
 #include <catch2/catch.hpp>
 
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <mutex>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "daemon/scheduler.hpp"
@@ -63,6 +65,49 @@ TEST_CASE("Scheduler: jobs take turns (round-robin)", "[daemon][scheduler]") {
   REQUIRE(s.wait_idle(10000));
   CHECK(log.get() == std::vector<std::string>{"a1", "b1", "a2", "b2", "a3", "a4"});
   CHECK(s.queued() == 0);
+}
+
+TEST_CASE("Scheduler: the idle hook runs once the queue drains, not between runs",
+          "[daemon][scheduler]") {
+  // The engine returns freed memory to the system from this hook: a busy daemon keeps it for
+  // the next run, an idle one gives it back.
+  Log log;
+  Gate gate;
+  std::mutex mu;
+  std::vector<std::size_t> runs_seen;  // runs done at each idle call
+  Scheduler s(2, [&](const std::string& j, long f) {
+    if (j == "gated") gate.wait();
+    log.add(j, f);
+  });
+  s.on_idle([&] {
+    std::lock_guard lock(mu);
+    runs_seen.push_back(log.get().size());
+  });
+  const auto idle_calls = [&] {
+    std::lock_guard lock(mu);
+    return runs_seen;
+  };
+  const auto wait_calls = [&](std::size_t n) {
+    for (int i = 0; i < 1000 && idle_calls().size() < n; ++i) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+  };
+  for (long f = 1; f <= 4; ++f) s.enqueue("a", f);
+  s.enqueue("gated", 1);
+  s.start();
+  gate.wait_for_waiter();
+  // The other worker drains "a" while "gated" runs: nothing is idle yet.
+  for (int i = 0; i < 1000 && log.get().size() < 4; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  REQUIRE(log.get().size() == 4);
+  CHECK(idle_calls().empty());
+  gate.release();
+  wait_calls(1);
+  CHECK(idle_calls() == std::vector<std::size_t>{5});
+  s.enqueue("a", 9);
+  wait_calls(2);
+  CHECK(idle_calls() == std::vector<std::size_t>{5, 6});
 }
 
 TEST_CASE("Scheduler: a frame is queued once and re-runs once after work arrives mid-run",
