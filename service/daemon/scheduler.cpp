@@ -148,10 +148,18 @@ int Scheduler::running() const {
   return running_;
 }
 
+bool Scheduler::idle_locked() const {
+  // A job paused while in the rotation stays there until a worker passes it over: not work.
+  return running_ == 0 && std::none_of(rotation_.begin(), rotation_.end(), [&](const auto& job) {
+           const auto it = jobs_.find(job);
+           return it != jobs_.end() && !it->second.paused && !it->second.ready.empty();
+         });
+}
+
 bool Scheduler::wait_idle(int timeout_ms) {
   std::unique_lock lock(mu_);
   return idle_cv_.wait_for(lock, std::chrono::milliseconds(timeout_ms),
-                           [this] { return running_ == 0 && rotation_.empty(); });
+                           [this] { return idle_locked(); });
 }
 
 void Scheduler::update_gauges() {
@@ -247,7 +255,7 @@ void Scheduler::worker() {
         }
       }
       update_gauges();
-      idle = running_ == 0 && rotation_.empty();
+      idle = idle_locked();
     }
     idle_cv_.notify_all();
     if (idle && on_idle_) on_idle_();

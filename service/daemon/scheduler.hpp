@@ -33,8 +33,8 @@ class Scheduler {
   Scheduler(const Scheduler&) = delete;
   Scheduler& operator=(const Scheduler&) = delete;
 
-  // Called on a worker, without the lock, each time the scheduler goes idle (the wait_idle
-  // condition: nothing runs, no frame of an active job is ready). Set before start().
+  // Called on a worker, without the lock, when a run ends and leaves the scheduler idle (the
+  // wait_idle condition: nothing runs, no frame of an active job is ready). Set before start().
   void on_idle(std::function<void()> hook) { on_idle_ = std::move(hook); }
 
   void start();
@@ -76,6 +76,7 @@ class Scheduler {
   void schedule(const Key& key, FrameState& st, TimePoint due);   // mu_ held
   void promote_due();                                             // mu_ held
   void update_gauges();                                           // mu_ held
+  bool idle_locked() const;  // the wait_idle condition; mu_ held
 
   int workers_count_;
   Run run_;

@@ -110,6 +110,31 @@ TEST_CASE("Scheduler: the idle hook runs once the queue drains, not between runs
   CHECK(idle_calls() == std::vector<std::size_t>{5, 6});
 }
 
+TEST_CASE("Scheduler: a job paused while queued does not keep the scheduler from idling",
+          "[daemon][scheduler]") {
+  Log log;
+  Gate gate;
+  std::atomic<int> idle_calls{0};
+  Scheduler s(1, [&](const std::string& j, long f) {
+    if (j == "gated") gate.wait();
+    log.add(j, f);
+  });
+  s.on_idle([&] { ++idle_calls; });
+  s.enqueue("gated", 1);
+  s.enqueue("a", 1);
+  s.start();
+  gate.wait_for_waiter();
+  s.set_paused("a", true);  // "a" is in the rotation behind the running frame
+  gate.release();
+  for (int i = 0; i < 1000 && idle_calls == 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  CHECK(idle_calls == 1);
+  REQUIRE(s.wait_idle(10000));
+  CHECK(log.get() == std::vector<std::string>{"gated1"});
+  CHECK(s.busy("a", 1));
+}
+
 TEST_CASE("Scheduler: a frame is queued once and re-runs once after work arrives mid-run",
           "[daemon][scheduler]") {
   Log log;
