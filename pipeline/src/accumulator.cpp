@@ -8,6 +8,7 @@
 #include <cfloat>
 #include <cmath>
 
+#include "parallel.hpp"
 #include "proden/error.hpp"
 #include "proden/hash.hpp"
 
@@ -54,12 +55,6 @@ void check_plane(const Image& img, const Image& colour, int channels, const char
                          std::to_string(colour.width()) + "x" + std::to_string(colour.height()) +
                          "x" + std::to_string(channels));
   }
-}
-
-template <class F>
-void parallel_pixels(std::size_t n, F&& body) {
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, kGrain),
-                    [&](const tbb::blocked_range<std::size_t>& r) { body(r.begin(), r.end()); });
 }
 
 }  // namespace
@@ -211,7 +206,7 @@ AddResult FrameAccumulator::add(const Pass& pass, const std::string& name) {
     m.m2[i] += w_add * delta * (x - m.mean[i]);
   };
 
-  parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+  parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
     std::size_t dropped = 0;
     std::size_t sanitized = 0;
     for (std::size_t p = begin; p < end; ++p) {
@@ -333,7 +328,7 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
     }
   };
 
-  parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+  parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
     for (std::size_t p = begin; p < end; ++p) {
       const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
       const std::uint32_t k = a.count[p] + b.count[p];
@@ -448,7 +443,7 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
       }
       const std::vector<double>& ma = a.*mean_of;
       const std::vector<double>& mb = b.*mean_of;
-      parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+      parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
         for (std::size_t p = begin; p < end; ++p) {
           const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
           const std::uint32_t k = a.count[p] + b.count[p];
@@ -481,7 +476,7 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
       out = Image(width_, height_, channels);
       const Half& half = halves_[h];
       const SubHalf& sub = subs_[h];
-      parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+      parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
         for (std::size_t p = begin; p < end; ++p) {
           const double w1 = sub.weight[p], w0 = half.weight[p] - w1;
           const double wq = s == 1 ? w1 : w0;
@@ -500,7 +495,7 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
         quarter(h, s, halves_[h].colour.mean, subs_[h].colour, 3, e.half_mean[h],
                 e.quarter_mean[q]);
         e.quarter_variance[q] = Image(width_, height_, 3);
-        parallel_pixels(n, [&](std::size_t begin, std::size_t end) {
+        parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
           for (std::size_t p = begin; p < end; ++p) {
             const double w1 = subs_[h].weight[p], w0 = halves_[h].weight[p] - w1;
             const double wq = s == 1 ? w1 : w0;

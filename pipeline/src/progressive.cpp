@@ -1,6 +1,5 @@
 #include "proden/progressive.hpp"
 
-#include <tbb/blocked_range.h>
 #include <tbb/combinable.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
@@ -15,6 +14,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "parallel.hpp"
 #include "proden/network/pdnet.hpp"
 
 namespace proden {
@@ -40,14 +40,8 @@ constexpr float kMaxVariance = 1e36f;
 // GaussianDenoiser's supported sigmas (its radius 3 sigma must stay <= 64).
 constexpr float kMaxGaussianSigma = 21.0f;
 
-// body(begin, end) over [0, n) in parallel chunks: for the frame-wide element-wise passes around
-// the stages, each element written by one task (the same values as one serial loop).
-template <class F>
-void parallel_elements(std::size_t n, F&& body) {
-  constexpr std::size_t kGrain = std::size_t{1} << 16;
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, kGrain),
-                    [&](const tbb::blocked_range<std::size_t>& r) { body(r.begin(), r.end()); });
-}
+// Elements per task of the frame-wide element-wise passes around the stages.
+constexpr std::size_t kElementGrain = std::size_t{1} << 16;
 
 // `dst` shaped like `src`, keeping its allocation when it already is.
 void shape_like(const Image& src, Image& dst) {
@@ -65,7 +59,7 @@ void sanitize_into(const Image& src, float lo, float hi, Image& dst) {
   shape_like(src, dst);
   const auto s = src.data();
   const auto d = dst.data();
-  parallel_elements(s.size(), [&](std::size_t b, std::size_t e) {
+  parallel_chunks(s.size(), kElementGrain, [&](std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) d[i] = sanitized(s[i], lo, hi);
   });
 }
@@ -77,7 +71,7 @@ void weights_variance(const Image& own, const Image& pooled, Image& out) {
   const auto v = own.data();
   const auto p = pooled.data();
   const auto o = out.data();
-  parallel_elements(o.size(), [&](std::size_t b, std::size_t e) {
+  parallel_chunks(o.size(), kElementGrain, [&](std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) o[i] = std::max(v[i], p[i]);
   });
 }
@@ -707,7 +701,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
       sanitize_into(frame.half_variance[h], 0.0f, kMaxVariance, hs.var);
       const auto qv = res.cv_variance.data();
       const auto vh = hs.var.data();
-      parallel_elements(qv.size(), [&](std::size_t b, std::size_t e) {
+      parallel_chunks(qv.size(), kElementGrain, [&](std::size_t b, std::size_t e) {
         for (std::size_t i = b; i < e; ++i) qv[i] += 0.5f * vh[i];
       });
       const Image* weights = &hs.var;
