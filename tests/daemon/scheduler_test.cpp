@@ -53,6 +53,14 @@ struct Gate {
   }
 };
 
+// Polls `done` for up to 10 s: for what a worker does after the run the test waits on.
+template <class P>
+void wait_until(P done) {
+  for (int i = 0; i < 1000 && !done(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+}
+
 }  // namespace
 
 TEST_CASE("Scheduler: jobs take turns (round-robin)", "[daemon][scheduler]") {
@@ -87,26 +95,19 @@ TEST_CASE("Scheduler: the idle hook runs once the queue drains, not between runs
     std::lock_guard lock(mu);
     return runs_seen;
   };
-  const auto wait_calls = [&](std::size_t n) {
-    for (int i = 0; i < 1000 && idle_calls().size() < n; ++i) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    }
-  };
   for (long f = 1; f <= 4; ++f) s.enqueue("a", f);
   s.enqueue("gated", 1);
   s.start();
   gate.wait_for_waiter();
   // The other worker drains "a" while "gated" runs: nothing is idle yet.
-  for (int i = 0; i < 1000 && log.get().size() < 4; ++i) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
+  wait_until([&] { return log.get().size() >= 4; });
   REQUIRE(log.get().size() == 4);
   CHECK(idle_calls().empty());
   gate.release();
-  wait_calls(1);
+  wait_until([&] { return !idle_calls().empty(); });
   CHECK(idle_calls() == std::vector<std::size_t>{5});
   s.enqueue("a", 9);
-  wait_calls(2);
+  wait_until([&] { return idle_calls().size() >= 2; });
   CHECK(idle_calls() == std::vector<std::size_t>{5, 6});
 }
 
@@ -126,9 +127,7 @@ TEST_CASE("Scheduler: a job paused while queued does not keep the scheduler from
   gate.wait_for_waiter();
   s.set_paused("a", true);  // "a" is in the rotation behind the running frame
   gate.release();
-  for (int i = 0; i < 1000 && idle_calls == 0; ++i) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
+  wait_until([&] { return idle_calls > 0; });
   CHECK(idle_calls == 1);
   REQUIRE(s.wait_idle(10000));
   CHECK(log.get() == std::vector<std::string>{"gated1"});
