@@ -32,11 +32,13 @@ void pad_into(float* block, std::size_t rs, int slot, const View& v, int c, cons
     // the last column read, repeated.
     const int mid0 = std::clamp(rect.x0, 0, rect.x1), mid1 = std::max(mid0, std::min(x_end, width));
     const int last = std::min(x_end, width) - 1;
-    const float* src = v.data + v.index(0, sy, c);
+    // Row sy of the view from its first column: image column x is row[x - vx0].
+    const std::ptrdiff_t vx0 = v.rect.x0;
+    const float* row = v.data + v.index(v.rect.x0, sy, c);
     int x = rect.x0;
-    for (; x < mid0; ++x) *dst++ = src[0];
-    for (; x < std::min(mid1, rect.x1); ++x) *dst++ = src[x];
-    for (; x < rect.x1; ++x) *dst++ = src[last];
+    for (; x < mid0; ++x) *dst++ = row[-vx0];
+    for (; x < std::min(mid1, rect.x1); ++x) *dst++ = row[x - vx0];
+    for (; x < rect.x1; ++x) *dst++ = row[last - vx0];
   }
 }
 
