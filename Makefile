@@ -18,7 +18,8 @@
 #   make fuzz    build the libFuzzer targets into build-fuzz/ (clang, ASan+UBSan) and run each one
 #                in turn until FUZZ_RUNS executions or FUZZ_SECONDS seconds (per target), growing
 #                build-fuzz/fuzz/corpus/; writes bench/results/fuzz.md (fuzz/README.md)
-#   make fuzz-smoke  each fuzz target FUZZ_SMOKE_SECONDS on the committed corpus (part of make test)
+#   make fuzz-smoke  each fuzz target FUZZ_SMOKE_SECONDS on the committed corpus (part of make test),
+#                built in the ASan tree (build-asan/)
 #   make bench   build the benchmarks into build-bench/, render missing evaluation sets (EVALDATA,
 #                default /work/evaldata; slow on a fresh machine), regenerate bench/results/ and
 #                bench/RESULTS.md (bench/run_all.sh documents its variables)
@@ -52,9 +53,12 @@ test: build test-asan test-tsan fuzz-smoke
 
 # Debug (assertions on) at -O1: the sanitizers' usual level, several times faster than -O0 for the
 # pipeline's tests (the tiled-equals-whole test took 5.5 minutes at -O0), stack traces intact.
+# clang, with libFuzzer's coverage instrumentation too (PRODEN_FUZZ): the same tree builds the
+# fuzz targets for make fuzz-smoke, so make test compiles the sanitized libraries once.
 asan: deps
 	cmake -S . -B $(ASAN_DIR) -DCMAKE_BUILD_TYPE=Debug "-DCMAKE_CXX_FLAGS_DEBUG=-g -O1" \
-	      -DPRODEN_SANITIZE=ON -DPRODEN_WERROR=$(WERROR) -DPRODEN_BUILD_BENCH=OFF
+	      -DCMAKE_CXX_COMPILER=clang++ -DPRODEN_SANITIZE=ON -DPRODEN_FUZZ=ON \
+	      -DPRODEN_WERROR=$(WERROR) -DPRODEN_BUILD_BENCH=OFF
 	cmake --build $(ASAN_DIR) -j $(JOBS) --target proden_unit_tests proden_daemon_tests
 
 # The sanitizer configuration runs the unit tests and the daemon's unit tests (the CLI/integration
@@ -89,13 +93,17 @@ run-cli: build
 	@echo "outputs in $(OUT_DIR)/"
 
 # libFuzzer targets (fuzz/): clang 14 + compiler-rt from Debian, every proden library instrumented.
+# The smoke runs them from the ASan tree (above); a campaign builds an optimised tree of its own.
+FUZZ_TARGET_NAMES = $(addprefix fuzz_,$(subst $(comma), ,$(FUZZ_TARGETS)))
+
+fuzz-smoke: asan
+	cmake --build $(ASAN_DIR) -j $(JOBS) --target $(FUZZ_TARGET_NAMES)
+	fuzz/run.py smoke $(ASAN_DIR) --seconds $(FUZZ_SMOKE_SECONDS) --targets $(FUZZ_TARGETS)
+
 fuzz-build: deps
 	cmake -S . -B $(FUZZ_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ \
 	      -DPRODEN_FUZZ=ON -DPRODEN_BUILD_TESTS=OFF -DPRODEN_BUILD_BENCH=OFF
-	cmake --build $(FUZZ_DIR) -j $(JOBS) --target $(addprefix fuzz_,$(subst $(comma), ,$(FUZZ_TARGETS)))
-
-fuzz-smoke: fuzz-build
-	fuzz/run.py smoke $(FUZZ_DIR) --seconds $(FUZZ_SMOKE_SECONDS) --targets $(FUZZ_TARGETS)
+	cmake --build $(FUZZ_DIR) -j $(JOBS) --target $(FUZZ_TARGET_NAMES)
 
 fuzz: fuzz-build
 	fuzz/run.py campaign $(FUZZ_DIR) --seconds $(FUZZ_SECONDS) --runs $(FUZZ_RUNS) \
@@ -141,4 +149,4 @@ format:
 	clang-format -i $$(git ls-files '*.cpp' '*.hpp')
 
 clean:
-	rm -rf $(BUILD_DIR) $(ASAN_DIR) $(TSAN_DIR)
+	rm -rf $(BUILD_DIR) $(ASAN_DIR) $(TSAN_DIR) $(FUZZ_DIR)
