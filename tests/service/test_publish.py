@@ -58,7 +58,8 @@ def channels(attrs):
     return names
 
 
-class PublishTest(SharedDaemonTest):
+class PublishCase(SharedDaemonTest):
+    """A daemon, and the helpers that publish a frame and run the CLI on the same passes."""
 
     def publish(self, name, pipeline=None, passes=2, **extra):
         """A job fed CORNELL[0..passes-1] by upload; returns (job id, frame status, EXR bytes)."""
@@ -90,6 +91,12 @@ class PublishTest(SharedDaemonTest):
                            timeout=60)
         self.assertEqual(r.returncode, 0, r.stderr)
         self.assertEqual(json.loads(r.stdout)["results"][0]["rmse"], 0.0)
+
+
+
+class PublishTest(PublishCase):
+    """What every published frame carries, per option (the ThreadSanitizer tree runs this class:
+    tests/CMakeLists.txt)."""
 
     def test_default_job_publishes_provenance_and_mixvariance_like_the_cli(self):
         jid, status, exr = self.publish("pub_default")
@@ -174,6 +181,38 @@ class PublishTest(SharedDaemonTest):
                                capture_output=True, timeout=60)
             self.assertGreater(json.loads(r.stdout)["results"][0]["rmse"], 0.0)
 
+    def test_job_denoiser_none_publishes_the_render(self):
+        jid, status, exr = self.publish("pub_none", {"denoiser": "none"})
+        attrs = exr_header(exr)
+        hdr = strings(attrs)
+        self.assertEqual(hdr["proden:denoiser"], "none")
+        self.assertEqual(hdr["proden:estimated_mse_source"], "variance")
+        self.assertEqual(status["estimated_error"]["source"], "variance")
+        self.assertNotIn("mixvariance.R", channels(attrs))
+        self.assertNotIn("cvsquare.R", channels(attrs))
+        s, b = self.d.json("GET", "/api/v1/jobs/%s/frames/1/image?format=png&layer=mixvariance" % jid)
+        self.assertEqual((s, b["error"]["code"]), (404, "layer_not_available"))
+
+    def test_pipeline_options_are_validated_by_name(self):
+        for pipeline, field in (({"tile": 4}, "pipeline.tile"),
+                                ({"frobnicate": 1}, "pipeline.frobnicate"),
+                                ({"weights": "/etc/passwd"}, "pipeline.weights"),
+                                ({"t_test": "no"}, "pipeline.t_test"),
+                                ({"mixer": "stein", "closed_form_rule": "inverse-error"},
+                                 "pipeline.closed_form_rule"),
+                                ({"denoiser": "magic"}, "pipeline.denoiser")):
+            s, b = self.d.json("POST", "/api/v1/jobs", {
+                "name": "bad", "output": {"dir": self.d.allowed}, "pipeline": pipeline})
+            self.assertEqual(s, 400, (pipeline, b))
+            self.assertEqual(b["error"]["code"], "invalid_field")
+            self.assertTrue(b["error"]["message"].startswith(field + ": "), b)
+
+
+class NforPublishTest(PublishCase):
+    """NFOR through the daemon equals the CLI's NFOR, number for number. The pipeline's numbers,
+    not the daemon's concurrency: 3 of the TSan daemon's 3.5 minutes here, so the Release tree
+    alone runs it."""
+
     def test_job_denoiser_nfor_publishes_what_the_cli_writes_under_both_mixers(self):
         """NFOR end to end through the daemon: the job's `pipeline.denoiser` "nfor" (the registry
         entry that asks the accumulator for the half buffers) under the closed-form mixer and the
@@ -223,32 +262,6 @@ class PublishTest(SharedDaemonTest):
             summary = self.cli(["--denoiser", "nfor"], os.path.join(tmp, "cli.exr"), passes=4)
             for k in ("source", "mse", "relmse", "equivalent_spp", "mse_high"):
                 self.assertEqual(summary["estimated_error"][k], est[k], k)
-
-    def test_job_denoiser_none_publishes_the_render(self):
-        jid, status, exr = self.publish("pub_none", {"denoiser": "none"})
-        attrs = exr_header(exr)
-        hdr = strings(attrs)
-        self.assertEqual(hdr["proden:denoiser"], "none")
-        self.assertEqual(hdr["proden:estimated_mse_source"], "variance")
-        self.assertEqual(status["estimated_error"]["source"], "variance")
-        self.assertNotIn("mixvariance.R", channels(attrs))
-        self.assertNotIn("cvsquare.R", channels(attrs))
-        s, b = self.d.json("GET", "/api/v1/jobs/%s/frames/1/image?format=png&layer=mixvariance" % jid)
-        self.assertEqual((s, b["error"]["code"]), (404, "layer_not_available"))
-
-    def test_pipeline_options_are_validated_by_name(self):
-        for pipeline, field in (({"tile": 4}, "pipeline.tile"),
-                                ({"frobnicate": 1}, "pipeline.frobnicate"),
-                                ({"weights": "/etc/passwd"}, "pipeline.weights"),
-                                ({"t_test": "no"}, "pipeline.t_test"),
-                                ({"mixer": "stein", "closed_form_rule": "inverse-error"},
-                                 "pipeline.closed_form_rule"),
-                                ({"denoiser": "magic"}, "pipeline.denoiser")):
-            s, b = self.d.json("POST", "/api/v1/jobs", {
-                "name": "bad", "output": {"dir": self.d.allowed}, "pipeline": pipeline})
-            self.assertEqual(s, 400, (pipeline, b))
-            self.assertEqual(b["error"]["code"], "invalid_field")
-            self.assertTrue(b["error"]["message"].startswith(field + ": "), b)
 
 
 if __name__ == "__main__":
