@@ -10,6 +10,7 @@
 #include <random>
 
 #include "daemon/frame_history.hpp"
+#include "daemon/memory.hpp"
 #include "daemon/processor.hpp"
 #include "daemon/request_parse.hpp"
 #include "daemon/versions.hpp"
@@ -77,10 +78,10 @@ Engine::Engine(const Config& config, const Roots& roots, Metrics& metrics, Event
       config_.worker_threads, [this](const std::string& job, long frame) { run_frame(job, frame); },
       &metrics_, clock_);
   // Runs' temporaries (decoded passes, the estimate, the pipeline's planes) are freed into the
-  // heap, where the next run reuses their pages while the farm keeps the daemon busy; once it is
-  // idle they go back to the system, so an idle daemon's resident memory follows what it holds
-  // (daemon/memory.hpp).
-  scheduler_->on_idle([this] { trimmer_.maybe_trim(); });
+  // heap, where the next run reuses their pages while the farm keeps the daemon busy; once it has
+  // been idle for a second they go back to the system, so an idle daemon's resident memory
+  // follows what it holds (daemon/memory.hpp).
+  scheduler_->on_idle([] { release_free_memory(); }, std::chrono::seconds(1));
 }
 
 Engine::~Engine() {

@@ -33,7 +33,6 @@
 #include "daemon/frame_run.hpp"
 #include "daemon/frame_state.hpp"
 #include "daemon/job_store.hpp"
-#include "daemon/memory.hpp"
 #include "daemon/metrics.hpp"
 #include "daemon/preview_cache.hpp"
 #include "daemon/quarantine.hpp"
@@ -164,7 +163,6 @@ class Engine {
   RetryPolicy retry_;
   PreviewCache previews_;
   std::unique_ptr<Watcher> watcher_;
-  MemoryTrimmer trimmer_{std::chrono::seconds(1)};  // when the scheduler goes idle (memory.hpp)
   std::unique_ptr<Scheduler> scheduler_;
   std::unique_ptr<tbb::global_control> pipeline_threads_;  // config.pipeline_threads > 0
 

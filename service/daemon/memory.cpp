@@ -53,15 +53,4 @@ std::size_t release_free_memory() {
 #endif
 }
 
-bool MemoryTrimmer::maybe_trim() {
-  const auto now = std::chrono::steady_clock::now().time_since_epoch().count();
-  auto seen = last_.load();
-  const auto interval =
-      std::chrono::duration_cast<std::chrono::steady_clock::duration>(interval_).count();
-  if (seen != 0 && now - seen < interval) return false;
-  if (!last_.compare_exchange_strong(seen, now)) return false;  // another thread trims
-  release_free_memory();
-  return true;
-}
-
 }  // namespace proden::daemon

@@ -3,8 +3,6 @@
 // freed memory in per-thread arenas otherwise; bench/results/soak.md measured the difference).
 #pragma once
 
-#include <atomic>
-#include <chrono>
 #include <cstddef>
 
 namespace proden::daemon {
@@ -20,17 +18,5 @@ void configure_allocator(std::size_t mmap_threshold, std::size_t trim_threshold,
 // Returns free heap pages to the system (malloc_trim): the bytes of resident memory released,
 // as measured from /proc/self/statm (0 where that is not available). No-op without glibc.
 std::size_t release_free_memory();
-
-// release_free_memory() at most once per `interval`, from any thread (the first call trims).
-class MemoryTrimmer {
- public:
-  explicit MemoryTrimmer(std::chrono::milliseconds interval) : interval_(interval) {}
-  // True when this call trimmed.
-  bool maybe_trim();
-
- private:
-  std::chrono::milliseconds interval_;
-  std::atomic<std::chrono::steady_clock::rep> last_{0};  // ticks of the last trim (0: never)
-};
 
 }  // namespace proden::daemon

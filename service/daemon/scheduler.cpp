@@ -180,13 +180,25 @@ void Scheduler::worker() {
         promote_due();
         if (stopping_) return;
         if (!rotation_.empty()) break;
-        if (delayed_.empty()) {
+        const TimePoint now = clock_.now();
+        if (idle_due_ && *idle_due_ <= now) {
+          idle_due_.reset();
+          if (idle_locked()) {  // else a run started meanwhile: its end sets the next due time
+            lock.unlock();
+            on_idle_();
+            lock.lock();
+          }
+          continue;
+        }
+        if (delayed_.empty() && !idle_due_) {
           cv_.wait(lock);
         } else {
-          // Re-read the clock at least every 100 ms: a fake clock in tests moves on its own.
-          const auto wait = std::min<Clock::time_point::duration>(
-              delayed_.begin()->first - clock_.now(), std::chrono::milliseconds(100));
-          cv_.wait_for(lock, wait);
+          // Until the first due time; re-read the clock at least every 100 ms, since a fake clock
+          // in tests moves on its own.
+          TimePoint due = delayed_.empty() ? *idle_due_ : delayed_.begin()->first;
+          if (idle_due_) due = std::min(due, *idle_due_);
+          cv_.wait_for(lock, std::min<Clock::time_point::duration>(due - now,
+                                                                   std::chrono::milliseconds(100)));
         }
       }
       job = rotation_.front();
@@ -226,7 +238,6 @@ void Scheduler::worker() {
       metrics_->inc("proden_worker_busy_seconds_total", {},
                     std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     }
-    bool idle = false;
     {
       std::lock_guard lock(mu_);
       --running_;
@@ -255,10 +266,11 @@ void Scheduler::worker() {
         }
       }
       update_gauges();
-      idle = idle_locked();
+      // Idle now: the hook is due after the delay, on whichever worker waits then (this one,
+      // next time round the loop, without a delay).
+      if (on_idle_ && idle_locked()) idle_due_ = clock_.now() + idle_delay_;
     }
     idle_cv_.notify_all();
-    if (idle && on_idle_) on_idle_();
   }
 }
 

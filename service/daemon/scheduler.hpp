@@ -13,6 +13,7 @@
 #include <functional>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <set>
 #include <string>
 #include <thread>
@@ -33,9 +34,15 @@ class Scheduler {
   Scheduler(const Scheduler&) = delete;
   Scheduler& operator=(const Scheduler&) = delete;
 
-  // Called on a worker, without the lock, when a run ends and leaves the scheduler idle (the
-  // wait_idle condition: nothing runs, no frame of an active job is ready). Set before start().
-  void on_idle(std::function<void()> hook) { on_idle_ = std::move(hook); }
+  // Called on a worker, without the lock, once the scheduler has stayed idle for `delay` (on its
+  // Clock) after a run (idle: the wait_idle condition, nothing runs and no frame of an active job
+  // is ready). A run that starts within the delay postpones the call to the idle time after it,
+  // so a daemon fed steadily never calls it. Set before start().
+  void on_idle(std::function<void()> hook,
+               std::chrono::milliseconds delay = std::chrono::milliseconds(0)) {
+    on_idle_ = std::move(hook);
+    idle_delay_ = delay;
+  }
 
   void start();
   // Stops taking frames: queued frames stay queued, running ones finish; joins the workers.
@@ -81,6 +88,8 @@ class Scheduler {
   int workers_count_;
   Run run_;
   std::function<void()> on_idle_;
+  std::chrono::milliseconds idle_delay_{0};
+  std::optional<TimePoint> idle_due_;  // when the idle hook is due (set when a run ends idle)
   Metrics* metrics_;
   const Clock& clock_;
   mutable std::mutex mu_;

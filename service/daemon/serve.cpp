@@ -207,7 +207,7 @@ int run_serve(Config c, const std::string& token) {
   // Frame-sized planes (up to 32 MiB: 1080p and below) stay in the heap while the daemon is busy,
   // so a run reuses the pages of the one before it instead of faulting ~1.2 GB in afresh (the
   // kernel zeroes every page: +14-34 % on a 1080p update, bench/RESULTS.md "Heap policy");
-  // the engine returns them once the scheduler is idle (daemon/memory.hpp, engine.cpp).
+  // the engine returns them once the scheduler has been idle for a second (engine.cpp).
   configure_allocator(std::size_t{32} << 20, std::size_t{INT_MAX}, 4);
 
   Metrics metrics;

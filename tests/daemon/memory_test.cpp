@@ -1,14 +1,12 @@
-// daemon/memory.hpp: freed heap pages go back to the system, at most once per interval.
+// daemon/memory.hpp: freed heap pages go back to the system.
 #include <catch2/catch.hpp>
 
 #include <cstring>
-#include <thread>
 #include <vector>
 
 #include "daemon/memory.hpp"
 
 using namespace proden::daemon;
-using namespace std::chrono_literals;
 
 #if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
 #define PRODEN_OWN_ALLOCATOR 1  // the sanitizers replace malloc: glibc's trim has nothing to do
@@ -17,15 +15,6 @@ using namespace std::chrono_literals;
 #define PRODEN_OWN_ALLOCATOR 1
 #endif
 #endif
-
-TEST_CASE("Memory: a trim runs at most once per interval", "[daemon][memory]") {
-  MemoryTrimmer t(50ms);
-  CHECK(t.maybe_trim());
-  CHECK_FALSE(t.maybe_trim());
-  std::this_thread::sleep_for(80ms);
-  CHECK(t.maybe_trim());
-  CHECK_FALSE(t.maybe_trim());
-}
 
 #if defined(__GLIBC__) && !defined(PRODEN_OWN_ALLOCATOR)
 TEST_CASE("Memory: free pages between live blocks go back to the system", "[daemon][memory]") {

@@ -111,6 +111,39 @@ TEST_CASE("Scheduler: the idle hook runs once the queue drains, not between runs
   CHECK(idle_calls() == std::vector<std::size_t>{5, 6});
 }
 
+TEST_CASE("Scheduler: with a delay, the idle hook waits until the scheduler has stayed idle",
+          "[daemon][scheduler]") {
+  // An idle time shorter than the delay (the next pass lands soon) keeps the freed memory for
+  // the run that follows; the hook runs once the scheduler has been idle for the whole delay.
+  using std::chrono::milliseconds;
+  proden::test::FakeClock clock;
+  Log log;
+  std::atomic<int> idle_calls{0};
+  Scheduler s(
+      2, [&](const std::string& j, long f) { log.add(j, f); }, nullptr, clock);
+  s.on_idle([&] { ++idle_calls; }, milliseconds(1000));
+  s.start();
+  // Workers re-read the (fake) clock at least every 100 ms; 300 ms of real time covers that.
+  const auto settle = [] { std::this_thread::sleep_for(milliseconds(300)); };
+  s.enqueue("a", 1);
+  REQUIRE(s.wait_idle(10000));  // idle at t0: the hook is due at t0 + 1000
+  clock.advance(milliseconds(600));
+  settle();
+  CHECK(idle_calls == 0);
+  s.enqueue("a", 2);  // work within the delay: the hook is due 1000 after it ends (t0 + 1600)
+  REQUIRE(s.wait_idle(10000));
+  clock.advance(milliseconds(500));  // t0 + 1100: past the first due time, not the second
+  settle();
+  CHECK(idle_calls == 0);
+  clock.advance(milliseconds(600));  // t0 + 1700
+  wait_until([&] { return idle_calls > 0; });
+  CHECK(idle_calls == 1);
+  clock.advance(milliseconds(5000));
+  settle();
+  CHECK(idle_calls == 1);  // once per idle time
+  CHECK(log.get() == std::vector<std::string>{"a1", "a2"});
+}
+
 TEST_CASE("Scheduler: a job paused while queued does not keep the scheduler from idling",
           "[daemon][scheduler]") {
   Log log;
