@@ -67,22 +67,42 @@ double window(const Inputs& in, int px, int py, int r, const F& f) {
   return s;
 }
 
-// The mixer's alpha at (px, py, c), written from the formulas.
-double reference_alpha(const Inputs& in, const ClosedFormParams& p, bool exact, int px, int py,
-                       int c) {
-  const auto weight = [&](int x, int y) {
-    const double n = window(in, x, y, 1, [](int, int) { return 1.0; });
-    const double mv = window(in, x, y, 1, [&](int qx, int qy) { return in.var.at(qx, qy, c); }) / n;
-    const double mx = window(in, x, y, 1, [&](int qx, int qy) { return in.x.at(qx, qy, c); }) / n;
-    switch (p.weight) {
-      case WindowWeight::uniform:
-        return 1.0;
-      case WindowWeight::relative:
-        return 1.0 / (mx * mx + 0.01);
-      case WindowWeight::variance:
-        return 1.0 / (mv + p.variance_floor * (mx * mx + 0.01) + 1e-30);
+// The window weight of every pixel, per channel (from the 3x3 means of x and Var[x] around it),
+// indexed (c * h + y) * w + x.
+std::vector<double> window_weights(const Inputs& in, const ClosedFormParams& p) {
+  std::vector<double> weights(static_cast<std::size_t>(3) * in.w * in.h);
+  for (int c = 0; c < 3; ++c) {
+    for (int y = 0; y < in.h; ++y) {
+      for (int x = 0; x < in.w; ++x) {
+        const double n = window(in, x, y, 1, [](int, int) { return 1.0; });
+        const double mv =
+            window(in, x, y, 1, [&](int qx, int qy) { return in.var.at(qx, qy, c); }) / n;
+        const double mx =
+            window(in, x, y, 1, [&](int qx, int qy) { return in.x.at(qx, qy, c); }) / n;
+        double w = 0.0;
+        switch (p.weight) {
+          case WindowWeight::uniform:
+            w = 1.0;
+            break;
+          case WindowWeight::relative:
+            w = 1.0 / (mx * mx + 0.01);
+            break;
+          case WindowWeight::variance:
+            w = 1.0 / (mv + p.variance_floor * (mx * mx + 0.01) + 1e-30);
+            break;
+        }
+        weights[(static_cast<std::size_t>(c) * in.h + y) * in.w + x] = w;
+      }
     }
-    return 0.0;
+  }
+  return weights;
+}
+
+// The mixer's alpha at (px, py, c), written from the formulas (weights: window_weights()).
+double reference_alpha(const Inputs& in, const ClosedFormParams& p,
+                       const std::vector<double>& weights, bool exact, int px, int py, int c) {
+  const auto weight = [&](int x, int y) {
+    return weights[(static_cast<std::size_t>(c) * in.h + y) * in.w + x];
   };
   const auto d = [&](int x, int y) {
     return static_cast<double>(in.y.at(x, y, c)) - in.x.at(x, y, c);
@@ -141,12 +161,13 @@ double max_error(const Inputs& in, const ClosedFormParams& p, bool exact, const 
   const ClosedFormMixer mixer(p);
   Buffer alpha(out, 3);
   mixer.mix(mix_inputs(in, exact), out, alpha);
+  const std::vector<double> weights = window_weights(in, p);
   double worst = 0.0;
   for (int c = 0; c < 3; ++c)
     for (int y = out.y0; y < out.y1; ++y)
       for (int x = out.x0; x < out.x1; ++x)
-        worst =
-            std::max(worst, std::abs(alpha.at(x, y, c) - reference_alpha(in, p, exact, x, y, c)));
+        worst = std::max(
+            worst, std::abs(alpha.at(x, y, c) - reference_alpha(in, p, weights, exact, x, y, c)));
   return worst;
 }
 
