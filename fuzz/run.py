@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Runs proden's libFuzzer targets (fuzz/README.md) one at a time and reports them.
 
-  fuzz/run.py smoke    BUILD_DIR [--seconds 20]            each target briefly on the committed
-                                                           corpus; exit 1 on any crash
+  fuzz/run.py smoke    BUILD_DIR [--seconds 20] [--jobs N] each target briefly on the committed
+                                                           corpus, N at a time (default: one per
+                                                           core); exit 1 on any crash
   fuzz/run.py campaign BUILD_DIR [--seconds N] [--runs N] [--targets a,b]
                                                            each target until N executions or N
                                                            seconds; the sessions are appended to
@@ -15,6 +16,7 @@ A session's crashing inputs land in BUILD_DIR/fuzz/artifacts/<target>/ (keep the
 fuzz/corpus/<target>/ once the bug is fixed, with a regression test in tests/).
 """
 import argparse
+import concurrent.futures
 import datetime
 import glob
 import json
@@ -114,12 +116,20 @@ def run(build, target, seconds, runs, work, artifacts, nice):
     return s
 
 
+def smoke_one(build, target, seconds):
+    with tempfile.TemporaryDirectory(prefix="proden-fuzz-smoke-") as work:
+        return run(build, target, seconds, 0, work,
+                   os.path.join(build, "fuzz", "smoke-artifacts", target), nice=False)
+
+
 def smoke(args):
+    # Each fuzzer is one single-threaded process: one per core runs each at its full rate, so the
+    # smoke's wall time is the sum of its targets' seconds divided by the cores.
+    jobs = args.jobs or os.cpu_count() or 1
+    with concurrent.futures.ThreadPoolExecutor(max_workers=jobs) as pool:
+        sessions = list(pool.map(lambda t: smoke_one(args.build, t, args.seconds), args.targets))
     failed = []
-    for t in args.targets:
-        with tempfile.TemporaryDirectory(prefix="proden-fuzz-smoke-") as work:
-            s = run(args.build, t, args.seconds, 0, work,
-                    os.path.join(args.build, "fuzz", "smoke-artifacts", t), nice=False)
+    for t, s in zip(args.targets, sessions):
         ok = s["exit"] == 0 and s["crashes"] == 0
         print("fuzz smoke %-14s %s  %s executions, %s exec/s, cov %s" %
               (t, "ok  " if ok else "FAIL", s.get("executions", "?"), s.get("exec_per_sec", "?"),
@@ -247,6 +257,7 @@ def main():
     ap.add_argument("build")
     ap.add_argument("--seconds", type=int, default=20)
     ap.add_argument("--runs", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=0, help="smoke: targets at a time (0: cores)")
     ap.add_argument("--targets", default=",".join(TARGETS))
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "results", "fuzz.md"))
     ap.add_argument("--sessions", action="append", default=[],
