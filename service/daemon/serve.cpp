@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <thread>
 
 #include "daemon/api.hpp"
 #include "daemon/config.hpp"
@@ -65,7 +66,13 @@ bool catch_stop_signals() {
   return true;
 }
 
-// Blocks until a stop signal was taken; returns its number.
+// Wakes wait_stop_signal() with 0, no signal's number: the drain has ended.
+void notify_drained() {
+  const unsigned char c = 0;
+  [[maybe_unused]] const ssize_t n = ::write(g_signal_write.load(), &c, 1);
+}
+
+// Blocks until a stop signal was taken (returns its number) or notify_drained() ran (0).
 int wait_stop_signal() {
   for (;;) {
     pollfd p{g_signal_read, POLLIN, 0};
@@ -233,10 +240,28 @@ int run_serve(Config c, const std::string& token) {
 
   ::pthread_sigmask(SIG_UNBLOCK, &set, nullptr);
   const int sig = wait_stop_signal();
-  spdlog::info("signal {}: draining", sig);
+  spdlog::info("signal {}: draining (a second signal stops at once)", sig);
   api.set_draining();
-  engine.stop();  // finishes in-flight frames; their state is persisted as they complete
-  server.stop();
+  // The drain runs beside this thread, which waits for it or for a second stop signal (a
+  // wrangler's second Ctrl-C, a stop script's escalation). That one exits at once and leaves the
+  // frames in flight as kill -9 would, which loses nothing: on restart their passes are found
+  // again and counted once (docs/api.md).
+  std::thread drain([&] {
+    engine.stop();  // finishes in-flight frames; their state is persisted as they complete
+    server.stop();
+    notify_drained();
+  });
+  if (const int second = wait_stop_signal(); second != 0) {
+    spdlog::warn("signal {} while draining: exiting now, the frames in flight are left unfinished",
+                 second);
+    spdlog::default_logger()->flush();
+    // Dies of the signal (its default action), as a process that does not drain would: a shell
+    // or systemd sees 128 + the signal, and nothing runs on the way out.
+    ::signal(second, SIG_DFL);
+    ::raise(second);
+    ::_exit(128 + second);  // not reached
+  }
+  drain.join();
   spdlog::info("stopped");
   ::close(lock_fd);
   return 0;

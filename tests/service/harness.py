@@ -173,6 +173,15 @@ class Daemon:
         return wait_until(ok, timeout, what="frame %d to reach %d passes" % (frame, passes))
 
 
+def metric(d, name):
+    """The first sample in d's /metrics of `name` (a metric, or a metric with its labels), else 0."""
+    s, h, body = d.request("GET", "/metrics")
+    for line in body.decode().split("\n"):
+        if line.startswith(name + " ") or line.startswith(name + "{"):
+            return float(line.rsplit(" ", 1)[1])
+    return 0.0
+
+
 class SseClient:
     """A raw-socket Server-Sent Events reader."""
 

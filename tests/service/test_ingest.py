@@ -8,15 +8,7 @@ import time
 import unittest
 
 sys.path.insert(0, os.path.dirname(__file__))
-from harness import CORNELL, FAST_WATCH, Daemon, SseClient, TempRoot, place_atomic, wait_until  # noqa: E402
-
-
-def metric(d, name):
-    s, h, body = d.request("GET", "/metrics")
-    for line in body.decode().split("\n"):
-        if line.startswith(name + " ") or line.startswith(name + "{"):
-            return float(line.rsplit(" ", 1)[1])
-    return 0.0
+from harness import CORNELL, FAST_WATCH, Daemon, SseClient, TempRoot, metric, place_atomic, wait_until  # noqa: E402
 
 
 def slow_write(src, dst, chunks=4, pause=0.08):

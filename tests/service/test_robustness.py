@@ -10,7 +10,7 @@ import time
 import unittest
 
 sys.path.insert(0, os.path.dirname(__file__))
-from harness import SharedDaemonTest, BINARY, CORNELL, Daemon, SseClient, TempRoot, place_atomic, wait_until  # noqa: E402
+from harness import SharedDaemonTest, BINARY, CORNELL, SLOWDOWN, Daemon, SseClient, TempRoot, metric, place_atomic, wait_until  # noqa: E402
 
 
 def read(path):
@@ -170,6 +170,43 @@ class StopSignalTest(unittest.TestCase):
                 d.stop()
             self.assertEqual(rc, 0, "the daemon died of the signal instead of draining")
             self.assertIn("draining", d.read_log())
+
+    def test_second_signal_while_draining_exits_at_once(self):
+        """A second SIGTERM while a frame is still running ends the daemon at once (it dies of the
+        signal) and leaves that frame as kill -9 would: after a restart its pass is found again and counted
+        once. The pass is a sample frame scaled up so that its run lasts seconds: 1024x1024, or
+        384x384 under ThreadSanitizer, where the pipeline runs on one thread and ~10x slower."""
+        import signal
+        with TempRoot() as root:
+            big = os.path.join(root, "big.exr")
+            size = "384x384" if SLOWDOWN > 1 else "1024x1024"
+            subprocess.run(["oiiotool", CORNELL[0], "--resize", size, "-o", big], check=True)
+            d = Daemon(root).start()
+            try:
+                watch = os.path.join(d.allowed, "w")
+                jid = d.create_job("drain", watch)
+                place_atomic(big, os.path.join(watch, "pass_00", "beauty_0001.exr"))
+                wait_until(lambda: metric(d, "proden_frames_in_progress") >= 1, timeout=60,
+                           what="the frame's run")
+                d.proc.send_signal(signal.SIGTERM)
+                wait_until(lambda: "draining" in d.read_log(), what="the drain")
+                self.assertGreaterEqual(metric(d, "proden_frames_in_progress"), 1)
+                t0 = time.monotonic()
+                rc = d.stop(timeout=10)  # the second SIGTERM
+                print("second SIGTERM: status %d after %.2f s" % (rc, time.monotonic() - t0))
+            except Exception:
+                print(d.read_log(), file=sys.stderr)
+                raise
+            self.assertEqual(rc, -signal.SIGTERM, d.read_log())
+            self.assertIn("while draining: exiting now", d.read_log())
+            d.start()
+            try:
+                f = d.wait_passes(jid, 1, 1, timeout=120)
+                self.assertEqual((f["passes"], f["version"]), (1, 1))
+                self.assertEqual(d.stop(), 0)
+            except Exception:
+                print(d.read_log(), file=sys.stderr)
+                raise
 
 
 if __name__ == "__main__":
