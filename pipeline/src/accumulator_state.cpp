@@ -39,22 +39,21 @@ using detail::Writer;
 
 }  // namespace
 
-std::vector<std::uint8_t> FrameAccumulator::serialize() const {
-  Writer w;
-  w.out.reserve(64 + state_bytes() + history_.size() * 64);
-  w.out.insert(w.out.end(), kMagic, kMagic + sizeof(kMagic));
-  w.put<std::uint32_t>(static_cast<std::uint32_t>(width_));
-  w.put<std::uint32_t>(static_cast<std::uint32_t>(height_));
+template <class W>
+void FrameAccumulator::write_state(W& w) const {
+  w.bytes({reinterpret_cast<const std::uint8_t*>(kMagic), sizeof(kMagic)});
+  w.put(static_cast<std::uint32_t>(width_));
+  w.put(static_cast<std::uint32_t>(height_));
   const std::uint8_t flags =
       static_cast<std::uint8_t>((layout_.albedo ? 1 : 0) | (layout_.normal ? 2 : 0) |
                                 (layout_.depth ? 4 : 0) | (layout_.variance ? 8 : 0));
   w.put(flags);
-  w.put<std::uint8_t>(feature_halves_ ? 1 : 0);
-  w.put<std::uint8_t>(quarters_ ? 1 : 0);
+  w.put(static_cast<std::uint8_t>(feature_halves_ ? 1 : 0));
+  w.put(static_cast<std::uint8_t>(quarters_ ? 1 : 0));
   for (const auto& h : halves_) {
     w.vec(h.weight);
     w.vec(h.count);
-    w.put<std::int32_t>(h.colour.channels);
+    w.put(static_cast<std::int32_t>(h.colour.channels));
     w.vec(h.colour.mean);
     w.vec(h.colour.m2);
     w.vec(h.albedo);
@@ -62,7 +61,7 @@ std::vector<std::uint8_t> FrameAccumulator::serialize() const {
     w.vec(h.depth);
   }
   for (const FeatureSpread* f : {&albedo_, &normal_, &depth_}) {
-    w.put<std::int32_t>(f->channels);
+    w.put(static_cast<std::int32_t>(f->channels));
     w.vec(f->m2);
   }
   w.vec(renderer_variance_);
@@ -75,16 +74,35 @@ std::vector<std::uint8_t> FrameAccumulator::serialize() const {
       w.vec(sh.depth);
     }
   }
-  w.put<std::uint64_t>(history_.size());
+  w.put(static_cast<std::uint64_t>(history_.size()));
   for (const auto& r : history_) {
     w.str(r.name);
     w.put(r.spp);
-    w.put<std::int32_t>(r.half);
-    w.put<std::uint64_t>(r.fingerprint);
-    w.put<std::uint64_t>(r.dropped_pixels);
-    w.put<std::uint64_t>(r.sanitized_features);
+    w.put(static_cast<std::int32_t>(r.half));
+    w.put(static_cast<std::uint64_t>(r.fingerprint));
+    w.put(static_cast<std::uint64_t>(r.dropped_pixels));
+    w.put(static_cast<std::uint64_t>(r.sanitized_features));
   }
-  w.put<std::uint64_t>(hash_span(std::span<const std::uint8_t>(w.out), kSeed));
+}
+
+std::size_t FrameAccumulator::serialized_size() const {
+  detail::SizeCounter c;
+  write_state(c);
+  return c.n + sizeof(std::uint64_t);
+}
+
+std::size_t FrameAccumulator::serialize_to(const ByteSink& sink) const {
+  const std::size_t n = serialized_size();
+  detail::StreamWriter w(sink, n - sizeof(std::uint64_t), kSeed);
+  write_state(w);
+  w.finish();
+  return n;
+}
+
+std::vector<std::uint8_t> FrameAccumulator::serialize() const {
+  Writer w;
+  w.out.reserve(serialized_size());
+  serialize_to([&w](std::span<const std::uint8_t> b) { w.bytes(b); });
   return std::move(w.out);
 }
 

@@ -1,39 +1,99 @@
-// Little binary writer/reader for the persisted frame state (FrameAccumulator, AovAccumulator):
-// trivially copyable values, length-prefixed arrays and strings, in host byte order. The reader
-// refuses truncated or inconsistent data with InputError (unreadable, subject "frame state").
+// Little binary writers/reader for the persisted frame state (FrameAccumulator, AovAccumulator):
+// trivially copyable values, length-prefixed arrays and strings, in host byte order, written
+// into a buffer, counted, or streamed to a sink with their hash. The reader refuses truncated or
+// inconsistent data with InputError (unreadable, subject "frame state").
 #pragma once
 
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <functional>
 #include <span>
 #include <string>
 #include <type_traits>
 #include <vector>
 
 #include "proden/error.hpp"
+#include "proden/hash.hpp"
 
 namespace proden::detail {
 
-class Writer {
+// put / vec / str for a writer D, in terms of its bytes(span): the one place the layout of a
+// value, an array (u64 length + raw values) and a string (u64 length + bytes) is written.
+template <class D>
+class Put {
  public:
   template <class T>
   void put(const T& v) {
     static_assert(std::is_trivially_copyable_v<T>);
-    const auto* p = reinterpret_cast<const std::uint8_t*>(&v);
-    out.insert(out.end(), p, p + sizeof(T));
+    self().bytes({reinterpret_cast<const std::uint8_t*>(&v), sizeof(T)});
   }
   template <class T>
   void vec(const std::vector<T>& v) {
     put<std::uint64_t>(v.size());
-    const auto* p = reinterpret_cast<const std::uint8_t*>(v.data());
-    out.insert(out.end(), p, p + v.size() * sizeof(T));
+    self().bytes({reinterpret_cast<const std::uint8_t*>(v.data()), v.size() * sizeof(T)});
   }
   void str(const std::string& s) {
     put<std::uint64_t>(s.size());
-    out.insert(out.end(), s.begin(), s.end());
+    self().bytes({reinterpret_cast<const std::uint8_t*>(s.data()), s.size()});
   }
+
+ private:
+  D& self() { return static_cast<D&>(*this); }
+};
+
+// Into one buffer.
+class Writer : public Put<Writer> {
+ public:
+  void bytes(std::span<const std::uint8_t> b) { out.insert(out.end(), b.begin(), b.end()); }
   std::vector<std::uint8_t> out;
+};
+
+// Counts the bytes only: the size a streamed state will have, known before it is hashed.
+class SizeCounter : public Put<SizeCounter> {
+ public:
+  void bytes(std::span<const std::uint8_t> b) { n += b.size(); }
+  std::size_t n = 0;
+};
+
+// Hands the bytes to a sink in pieces, hashing them as they go (hash_bytes of the whole, `seed`,
+// for a body of `total` bytes): small fields are gathered into a buffer, arrays go to the sink
+// straight from their planes, so a state of a few hundred MB is never copied whole.
+class StreamWriter : public Put<StreamWriter> {
+ public:
+  using Sink = std::function<void(std::span<const std::uint8_t>)>;
+  StreamWriter(const Sink& sink, std::uint64_t total, std::uint64_t seed)
+      : sink_(sink), hash_(total, seed) {}
+  void bytes(std::span<const std::uint8_t> b) {
+    if (b.size() < kDirect) {
+      buf_.insert(buf_.end(), b.begin(), b.end());
+      if (buf_.size() >= kDirect) flush();
+      return;
+    }
+    flush();
+    emit(b);
+  }
+  // Flushes the body, then appends its u64 hash (not itself hashed).
+  void finish() {
+    flush();
+    const std::uint64_t h = hash_.finish();
+    sink_({reinterpret_cast<const std::uint8_t*>(&h), sizeof h});
+  }
+
+ private:
+  static constexpr std::size_t kDirect = 64 << 10;
+  void flush() {
+    if (buf_.empty()) return;
+    emit(buf_);
+    buf_.clear();
+  }
+  void emit(std::span<const std::uint8_t> b) {
+    hash_.update(b);
+    sink_(b);
+  }
+  const Sink& sink_;
+  ByteHasher hash_;
+  std::vector<std::uint8_t> buf_;
 };
 
 class Reader {

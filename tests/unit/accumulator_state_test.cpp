@@ -2,6 +2,7 @@
 // and states written by the previous format version still load.
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -203,6 +204,42 @@ TEST_CASE("a state with quarters round-trips and resumes bit-identically", "[acc
   auto blob = a.serialize();
   blob[blob.size() / 2] ^= 1;
   CHECK_THROWS_AS(FrameAccumulator::deserialize(blob), InputError);
+}
+
+// tests/data/accumulator_v3.bin: written by format v3's serialize() as it was before the state
+// was streamed (main at 656bb3d, which built the whole blob in one buffer) from fixture_pass(0..3)
+// named "v3pass0".."v3pass3", with quarters. The streamed writer must produce the same bytes.
+TEST_CASE("a streamed state is the version-3 bytes, in pieces that leave the planes uncopied",
+          "[accumulator][state]") {
+  const auto fixture = read_fixture("accumulator_v3.bin");
+  REQUIRE(fixture[7] == 3);
+  FrameAccumulator a({.quarters = true});
+  for (int k = 0; k < 4; ++k) a.add(fixture_pass(k), "v3pass" + std::to_string(k));
+  CHECK(a.serialize() == fixture);
+  CHECK(a.serialized_size() == fixture.size());
+  std::vector<std::uint8_t> streamed;
+  std::size_t pieces = 0;
+  CHECK(a.serialize_to([&](std::span<const std::uint8_t> b) {
+    streamed.insert(streamed.end(), b.begin(), b.end());
+    ++pieces;
+  }) == fixture.size());
+  CHECK(streamed == fixture);
+  CHECK(pieces >= 2);  // the body, then its hash
+  CHECK(FrameAccumulator::deserialize(fixture).state_digest() == a.state_digest());
+
+  // A frame big enough that each plane is handed over directly: the largest piece is one plane
+  // (a half's colour means, 3 doubles per pixel), never the whole state.
+  FrameAccumulator big;
+  for (std::uint64_t s = 1; s <= 2; ++s)
+    big.add(test::make_pass(160, 90, 4.0, s, Layout{true, true, true, false}),
+            "p" + std::to_string(s));
+  std::size_t largest = 0, total = 0;
+  big.serialize_to([&](std::span<const std::uint8_t> b) {
+    largest = std::max(largest, b.size());
+    total += b.size();
+  });
+  CHECK(total == big.serialize().size());
+  CHECK(largest == std::size_t{160} * 90 * 3 * sizeof(double));
 }
 
 // A state whose checksum is intact but which holds a non-finite number (damage before the

@@ -25,6 +25,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <span>
 #include <string>
 #include <vector>
@@ -133,8 +134,18 @@ class FrameAccumulator {
   // throws InputError (unreadable) on a corrupt, truncated or inconsistent blob.
   std::vector<std::uint8_t> serialize() const;
   static FrameAccumulator deserialize(std::span<const std::uint8_t> blob);
+  // serialize()'s bytes handed to `sink` in order, in pieces (the planes straight from the
+  // state, never copied whole: a 1080p state with features is ~600 MB), and their count
+  // (serialized_size(), known first).
+  using ByteSink = std::function<void(std::span<const std::uint8_t>)>;
+  std::size_t serialize_to(const ByteSink& sink) const;
+  std::size_t serialized_size() const;
 
  private:
+  // Writes everything before the trailing checksum with writer W (detail::Put in state_io.hpp).
+  template <class W>
+  void write_state(W& w) const;
+
   struct Moments {  // weighted Welford accumulators, planar [c * pixels + p]
     int channels = 0;
     std::vector<double> mean;
