@@ -91,9 +91,9 @@ std::size_t FrameAccumulator::serialized_size() const {
   return c.n + sizeof(std::uint64_t);
 }
 
-std::size_t FrameAccumulator::serialize_to(const ByteSink& sink) const {
+std::size_t FrameAccumulator::serialize_to(const ByteSink& sink, ByteHasher* also) const {
   const std::size_t n = serialized_size();
-  detail::StreamWriter w(sink, n - sizeof(std::uint64_t), kSeed);
+  detail::StreamWriter w(sink, n - sizeof(std::uint64_t), kSeed, also);
   write_state(w);
   w.finish();
   return n;

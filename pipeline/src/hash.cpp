@@ -1,5 +1,6 @@
 #include "proden/hash.hpp"
 
+#include <algorithm>
 #include <cstring>
 
 namespace proden {
@@ -38,6 +39,29 @@ void ByteHasher::update(std::span<const unsigned char> bytes) {
       fill_ = 0;
     }
   }
+}
+
+void ByteHasher::update_both(ByteHasher& a, ByteHasher& b, std::span<const unsigned char> bytes) {
+  if (a.fill_ != b.fill_) {  // out of step: no common words
+    a.update(bytes);
+    b.update(bytes);
+    return;
+  }
+  std::size_t i = 0;
+  if (a.fill_ != 0) {  // complete both partial words first
+    i = std::min<std::size_t>(8 - a.fill_, bytes.size());
+    a.update(bytes.first(i));
+    b.update(bytes.first(i));
+  }
+  for (; i + 8 <= bytes.size(); i += 8) {
+    std::uint64_t word;
+    std::memcpy(&word, bytes.data() + i, 8);
+    word *= kMul;
+    a.h_ = mix(a.h_ ^ word) + kMul;
+    b.h_ = mix(b.h_ ^ word) + kMul;
+  }
+  a.update(bytes.subspan(i));
+  b.update(bytes.subspan(i));
 }
 
 std::uint64_t ByteHasher::finish() const {

@@ -58,12 +58,14 @@ class SizeCounter : public Put<SizeCounter> {
 
 // Hands the bytes to a sink in pieces, hashing them as they go (hash_bytes of the whole, `seed`,
 // for a body of `total` bytes): small fields are gathered into a buffer, arrays go to the sink
-// straight from their planes, so a state of a few hundred MB is never copied whole.
+// straight from their planes, so a state of a few hundred MB is never copied whole. `also`, if
+// given, is a hash kept over the same bytes (the hash appended too) in the same pass.
 class StreamWriter : public Put<StreamWriter> {
  public:
   using Sink = std::function<void(std::span<const std::uint8_t>)>;
-  StreamWriter(const Sink& sink, std::uint64_t total, std::uint64_t seed)
-      : sink_(sink), hash_(total, seed) {}
+  StreamWriter(const Sink& sink, std::uint64_t total, std::uint64_t seed,
+               ByteHasher* also = nullptr)
+      : sink_(sink), hash_(total, seed), also_(also) {}
   void bytes(std::span<const std::uint8_t> b) {
     if (b.size() < kDirect) {
       buf_.insert(buf_.end(), b.begin(), b.end());
@@ -77,7 +79,9 @@ class StreamWriter : public Put<StreamWriter> {
   void finish() {
     flush();
     const std::uint64_t h = hash_.finish();
-    sink_({reinterpret_cast<const std::uint8_t*>(&h), sizeof h});
+    const std::span<const std::uint8_t> tail{reinterpret_cast<const std::uint8_t*>(&h), sizeof h};
+    if (also_) also_->update(tail);
+    sink_(tail);
   }
 
  private:
@@ -88,11 +92,16 @@ class StreamWriter : public Put<StreamWriter> {
     buf_.clear();
   }
   void emit(std::span<const std::uint8_t> b) {
-    hash_.update(b);
+    if (also_) {
+      ByteHasher::update_both(hash_, *also_, b);
+    } else {
+      hash_.update(b);
+    }
     sink_(b);
   }
   const Sink& sink_;
   ByteHasher hash_;
+  ByteHasher* also_;
   std::vector<std::uint8_t> buf_;
 };
 

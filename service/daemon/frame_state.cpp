@@ -179,7 +179,8 @@ std::size_t put_statistics(const FrameAccumulator& frame, std::span<const std::u
   };
   emit(bytes_of(kMagic, sizeof kMagic));
   emit(bytes_of(&m, sizeof m));
-  frame.serialize_to(emit);
+  // The accumulator's bytes enter h in the pass that computes their own checksum.
+  frame.serialize_to([&put](std::span<const std::uint8_t> b) { put(b); }, &h);
   emit(aov);
   const std::uint64_t blob_hash = h.finish();
   put(bytes_of(&blob_hash, sizeof blob_hash));

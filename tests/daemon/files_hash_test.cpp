@@ -29,6 +29,29 @@ TEST_CASE("ByteHasher: pieces of any size give hash_bytes of the whole", "[daemo
   }
 }
 
+TEST_CASE("ByteHasher: update_both equals two updates, in or out of step", "[daemon][files]") {
+  std::mt19937_64 rng(9);
+  std::vector<unsigned char> bytes(5000);
+  for (auto& b : bytes) b = static_cast<unsigned char>(rng());
+  // `outer` has taken `lead` bytes of its own first (a file's head before the blob): the two
+  // hashers' partial words are in step when lead is a multiple of 8, out of step otherwise.
+  for (const std::size_t lead : {0u, 8u, 16u, 3u, 13u}) {
+    for (const std::size_t piece : {1u, 5u, 8u, 64u, 1000u, 5000u}) {
+      INFO("lead " << lead << " piece " << piece);
+      ByteHasher inner(bytes.size(), 3), outer(lead + bytes.size(), 4);
+      outer.update({bytes.data(), lead});
+      for (std::size_t at = 0; at < bytes.size(); at += piece) {
+        ByteHasher::update_both(inner, outer,
+                                {bytes.data() + at, std::min(piece, bytes.size() - at)});
+      }
+      std::vector<unsigned char> whole(bytes.begin(), bytes.begin() + static_cast<long>(lead));
+      whole.insert(whole.end(), bytes.begin(), bytes.end());
+      CHECK(inner.finish() == hash_bytes(bytes, 3));
+      CHECK(outer.finish() == hash_bytes(whole, 4));
+    }
+  }
+}
+
 TEST_CASE("hash_fd: the file's hash in 1 MiB chunks; a short file is unreadable",
           "[daemon][files]") {
   test::TempDir t;

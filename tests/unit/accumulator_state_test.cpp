@@ -225,6 +225,10 @@ TEST_CASE("a streamed state is the version-3 bytes, in pieces that leave the pla
   }) == fixture.size());
   CHECK(streamed == fixture);
   CHECK(pieces >= 2);  // the body, then its hash
+  // A hash run beside it (the state file's) sees the same bytes, its checksum included.
+  ByteHasher also(fixture.size(), 11);
+  a.serialize_to([](std::span<const std::uint8_t>) {}, &also);
+  CHECK(also.finish() == hash_bytes(fixture, 11));
   CHECK(FrameAccumulator::deserialize(fixture).state_digest() == a.state_digest());
 
   // A frame big enough that each plane is handed over directly: the largest piece is one plane

@@ -30,6 +30,7 @@
 #include <string>
 #include <vector>
 
+#include "proden/hash.hpp"
 #include "proden/image.hpp"
 #include "proden/pass.hpp"
 
@@ -136,9 +137,10 @@ class FrameAccumulator {
   static FrameAccumulator deserialize(std::span<const std::uint8_t> blob);
   // serialize()'s bytes handed to `sink` in order, in pieces (the planes straight from the
   // state, never copied whole: a 1080p state with features is ~600 MB), and their count
-  // (serialized_size(), known first).
+  // (serialized_size(), known first). `also`: a hash to run over the same bytes in the same
+  // pass (the state file's), at about no cost beside the blob's own checksum.
   using ByteSink = std::function<void(std::span<const std::uint8_t>)>;
-  std::size_t serialize_to(const ByteSink& sink) const;
+  std::size_t serialize_to(const ByteSink& sink, ByteHasher* also = nullptr) const;
   std::size_t serialized_size() const;
 
  private:

@@ -15,6 +15,11 @@ class ByteHasher {
   void update(std::span<const unsigned char> bytes);
   std::uint64_t finish() const;  // after exactly `total` bytes
 
+  // a.update(bytes) and b.update(bytes) in one pass over them. Each hash is a serial chain (one
+  // multiply-mix per 8 bytes, bound by its latency); two independent chains overlap in the CPU,
+  // so both cost about what one does (the state file's hash and its accumulator's checksum).
+  static void update_both(ByteHasher& a, ByteHasher& b, std::span<const unsigned char> bytes);
+
  private:
   std::uint64_t h_;
   unsigned char word_[8] = {};
