@@ -173,9 +173,10 @@ class StopSignalTest(unittest.TestCase):
 
     def test_second_signal_while_draining_exits_at_once(self):
         """A second SIGTERM while a frame is still running ends the daemon at once (it dies of the
-        signal) and leaves that frame as kill -9 would: after a restart its pass is found again and counted
-        once. The pass is a sample frame scaled up so that its run lasts seconds: 1024x1024, or
-        384x384 under ThreadSanitizer, where the pipeline runs on one thread and ~10x slower."""
+        signal) and leaves that frame as kill -9 would: after a restart its pass is found again
+        and counted once. The pass is a sample frame scaled up so that its run lasts seconds:
+        1024x1024, or 384x384 under ThreadSanitizer, where the pipeline runs on one thread and
+        ~10x slower."""
         import signal
         with TempRoot() as root:
             big = os.path.join(root, "big.exr")
