@@ -4,6 +4,7 @@
 #include <OpenImageIO/imageio.h>
 #include <fcntl.h>
 #include <sys/stat.h>
+#include <tbb/parallel_for.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -43,6 +44,9 @@ struct Header {
   std::vector<std::string> attribute_values;
   std::map<std::string, std::string> attributes;  // name -> value as string
   std::vector<OIIO::TypeDesc> channel_types;
+  // Per subimage: its first scanline's y and whether it is tiled (read whole, not in strips).
+  std::vector<int> part_y;
+  std::vector<char> part_tiled;
 };
 
 std::string oiio_error(OIIO::ImageInput* in) {
@@ -158,6 +162,8 @@ Header read_header(OIIO::ImageInput& in, const HeaderSummary& summary, const std
   h.format = in.format_name();
   for (int s = 0; in.seek_subimage(s, 0); ++s) {
     const OIIO::ImageSpec& spec = in.spec();
+    h.part_y.push_back(spec.y);
+    h.part_tiled.push_back(spec.tile_width > 0 ? 1 : 0);
     // The decoder must agree with the bounded header walk.
     if (s >= static_cast<int>(summary.parts.size()) ||
         static_cast<std::uint64_t>(std::max(spec.width, 0)) *
@@ -350,12 +356,16 @@ namespace {
 
 // Reads the named channels (all present in `h`) as planar images, one per requested set. Channels
 // are read as runs of neighbouring channel indices of a subimage (OIIO converts half to float),
-// one run at a time, so the peak is the output planes plus the largest run.
+// one run at a time. A scanline run is decoded in strips of about ReadOptions::strip_bytes (a tiled
+// one whole), so the peak is the output planes plus one strip. The strip stays below glibc's mmap
+// ceiling (32 MiB), so the daemon's heap reuses it: a whole 1080p run (100 MB for a 12-channel
+// Cycles pass) was a fresh mapping that the kernel faulted in and zeroed on every read
+// (bench/RESULTS.md, "Reading a pass in strips").
 class ChannelLoader {
  public:
   ChannelLoader(OIIO::ImageInput& in, const Header& h, const std::string& path,
-                std::vector<std::vector<std::string>> sets)
-      : in_(in), h_(h), path_(path), sets_(std::move(sets)) {
+                std::vector<std::vector<std::string>> sets, std::uint64_t strip_bytes)
+      : in_(in), h_(h), path_(path), sets_(std::move(sets)), strip_bytes_(strip_bytes) {
     std::map<int, std::set<int>> used;
     for (const auto& set : sets_) {
       for (const auto& n : set) {
@@ -375,13 +385,15 @@ class ChannelLoader {
     }
   }
 
-  // Estimated peak bytes of load(): `resident` (the file, when in memory) + planes + largest run.
+  // Estimated peak bytes of load(): `resident` (the file, when in memory) + planes + the largest
+  // buffer a run decodes into.
   std::uint64_t peak_bytes(std::uint64_t resident) const {
     const std::uint64_t px = pixels();
     std::uint64_t planes = 0, run = 0;
     for (const auto& set : sets_) planes += px * set.size() * sizeof(float);
     for (const auto& r : runs_) {
-      run = std::max(run, px * static_cast<std::uint64_t>(r.end - r.begin) * sizeof(float));
+      run = std::max(run, static_cast<std::uint64_t>(rows_per_read(r)) *
+                              static_cast<std::uint64_t>(h_.width) * row_floats(r) * sizeof(float));
     }
     return resident + planes + run;
   }
@@ -392,23 +404,24 @@ class ChannelLoader {
       out.push_back(set.empty() ? Image()
                                 : Image(h_.width, h_.height, static_cast<int>(set.size())));
     }
-    const std::size_t px = static_cast<std::size_t>(pixels());
     std::vector<float> buf;
     for (const auto& r : runs_) {
-      const auto n = static_cast<std::size_t>(r.end - r.begin);
-      buf.assign(px * n, 0.0f);
-      if (!in_.read_image(r.subimage, 0, r.begin, r.end, OIIO::TypeDesc::FLOAT, buf.data())) {
-        fail(InputErrorKind::unreadable, path_,
-             "truncated or corrupt pixel data: " + oiio_error(&in_));
-      }
-      for (std::size_t k = 0; k < sets_.size(); ++k) {
-        for (std::size_t c = 0; c < sets_[k].size(); ++c) {
-          const ChannelRef ref = h_.where.at(sets_[k][c]);
-          if (ref.subimage != r.subimage || ref.index < r.begin || ref.index >= r.end) continue;
-          const auto off = static_cast<std::size_t>(ref.index - r.begin);
-          auto plane = out[k].plane(static_cast<int>(c));
-          for (std::size_t p = 0; p < px; ++p) plane[p] = buf[p * n + off];
+      const int rows = rows_per_read(r);
+      buf.resize(static_cast<std::size_t>(rows) * static_cast<std::size_t>(h_.width) *
+                 row_floats(r));
+      const bool whole = rows == h_.height;
+      for (int y0 = 0; y0 < h_.height; y0 += rows) {
+        const int y1 = std::min(y0 + rows, h_.height);
+        const int top = h_.part_y[static_cast<std::size_t>(r.subimage)];
+        const bool ok =
+            whole ? in_.read_image(r.subimage, 0, r.begin, r.end, OIIO::TypeDesc::FLOAT, buf.data())
+                  : in_.read_scanlines(r.subimage, 0, top + y0, top + y1, 0, r.begin, r.end,
+                                       OIIO::TypeDesc::FLOAT, buf.data());
+        if (!ok) {
+          fail(InputErrorKind::unreadable, path_,
+               "truncated or corrupt pixel data: " + oiio_error(&in_));
         }
+        scatter(r, buf, y0, y1, out);
       }
     }
     return out;
@@ -421,11 +434,42 @@ class ChannelLoader {
   std::uint64_t pixels() const {
     return static_cast<std::uint64_t>(h_.width) * static_cast<std::uint64_t>(h_.height);
   }
+  static std::size_t row_floats(const Run& r) { return static_cast<std::size_t>(r.end - r.begin); }
+  // Scanlines one read of run `r` decodes: the whole image when tiled, else a strip of about
+  // strip_bytes_, a multiple of 32 rows (OpenEXR's largest scanline chunk, PIZ's) when it can be.
+  int rows_per_read(const Run& r) const {
+    if (h_.part_tiled[static_cast<std::size_t>(r.subimage)]) return h_.height;
+    const std::uint64_t row_bytes =
+        static_cast<std::uint64_t>(h_.width) * row_floats(r) * sizeof(float);
+    std::uint64_t rows =
+        std::max<std::uint64_t>(1, strip_bytes_ / std::max<std::uint64_t>(row_bytes, 1));
+    if (rows >= 32) rows -= rows % 32;
+    return static_cast<int>(std::min<std::uint64_t>(rows, static_cast<std::uint64_t>(h_.height)));
+  }
+  // Rows [y0, y1) of the run's interleaved buffer into the output planes, rows in parallel.
+  void scatter(const Run& r, const std::vector<float>& buf, int y0, int y1,
+               std::vector<Image>& out) const {
+    const std::size_t n = row_floats(r), w = static_cast<std::size_t>(h_.width);
+    for (std::size_t k = 0; k < sets_.size(); ++k) {
+      for (std::size_t c = 0; c < sets_[k].size(); ++c) {
+        const ChannelRef ref = h_.where.at(sets_[k][c]);
+        if (ref.subimage != r.subimage || ref.index < r.begin || ref.index >= r.end) continue;
+        const auto off = static_cast<std::size_t>(ref.index - r.begin);
+        float* const plane = out[k].plane(static_cast<int>(c)).data();
+        tbb::parallel_for(y0, y1, [&](int y) {
+          const float* src = buf.data() + static_cast<std::size_t>(y - y0) * w * n + off;
+          float* dst = plane + static_cast<std::size_t>(y) * w;
+          for (std::size_t p = 0; p < w; ++p) dst[p] = src[p * n];
+        });
+      }
+    }
+  }
   OIIO::ImageInput& in_;
   const Header& h_;
   const std::string& path_;
   std::vector<std::vector<std::string>> sets_;
   std::vector<Run> runs_;
+  std::uint64_t strip_bytes_;
 };
 
 void check_budget(std::uint64_t need, const std::string& path, const ReadLimits& limits) {
@@ -459,7 +503,7 @@ Prepared prepare(const ByteSource& src, const std::string& name, const ReadOptio
   Prepared p{open_source(src, name, options), {}, {}, {}};
   p.h = read_header(*p.op.in, p.op.summary, name, options.limits);
   p.r = resolve(p.h, name, options, p.info);
-  ChannelLoader plan(*p.op.in, p.h, name, channel_sets(p.r, aovs));
+  ChannelLoader plan(*p.op.in, p.h, name, channel_sets(p.r, aovs), options.strip_bytes);
   // Counted as if the file were in memory: callers reading through a descriptor use less.
   p.info.read_bytes = plan.peak_bytes(src.size());
   check_budget(p.info.read_bytes, name, options.limits);
@@ -494,7 +538,9 @@ PassInfo probe_pass(const std::string& path, const ReadOptions& options) {
 Pass read_pass(const ByteSource& source, const std::string& name, const ReadOptions& options,
                PassInfo* info_out, std::vector<AovChannel>* aovs) {
   Prepared p = prepare(source, name, options, aovs != nullptr);
-  auto images = ChannelLoader(*p.op.in, p.h, name, channel_sets(p.r, aovs != nullptr)).load();
+  auto images =
+      ChannelLoader(*p.op.in, p.h, name, channel_sets(p.r, aovs != nullptr), options.strip_bytes)
+          .load();
   Pass pass;
   pass.colour = std::move(images[0]);
   pass.albedo = std::move(images[1]);
@@ -533,7 +579,7 @@ Image read_layer(const ByteSource& source, const std::string& name, const std::s
       fail(InputErrorKind::missing_channels, name, "no layer '" + layer + "' (channel " + n + ")");
     }
   }
-  ChannelLoader loader(*op.in, h, name, {names});
+  ChannelLoader loader(*op.in, h, name, {names}, o.strip_bytes);
   check_budget(loader.peak_bytes(source.size()), name, o.limits);
   return std::move(loader.load()[0]);
 }

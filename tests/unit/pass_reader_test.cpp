@@ -156,6 +156,66 @@ TEST_CASE("multi-part EXR: channels gathered across parts", "[io]") {
   require_close(r.albedo, p.albedo, 0);
 }
 
+TEST_CASE("scanlines read in strips of any height equal one whole read", "[io]") {
+  // A strip of 1 byte is one row per decode, 1000 bytes a few rows (never a multiple of the file's
+  // 16-row chunks), the default the whole 19-row image; a tiled file is read whole whatever the
+  // strip. Values must match bit for bit, and a smaller strip must lower the read's peak.
+  test::TempDir dir;
+  const Layout feats{true, true, true, false};
+  const Pass p = test::make_pass(23, 19, 4, 7, feats);
+  auto write = [&](const std::string& name, int tile, int origin, bool half) {
+    const std::string f = dir.file(name);
+    auto out = OIIO::ImageOutput::create(f);
+    REQUIRE(out);
+    OIIO::ImageSpec spec(23, 19, 10, half ? OIIO::TypeDesc::HALF : OIIO::TypeDesc::FLOAT);
+    spec.channelnames = {"R",        "G",        "B",        "Albedo.R", "Albedo.G",
+                         "Albedo.B", "Normal.X", "Normal.Y", "Normal.Z", "Depth.Z"};
+    spec.x = spec.full_x = origin;
+    spec.y = spec.full_y = origin;
+    if (tile > 0) {
+      spec.tile_width = tile;
+      spec.tile_height = tile;
+    }
+    std::vector<float> v(23 * 19 * 10);
+    const Image* src[4] = {&p.colour, &p.albedo, &p.normal, &p.depth};
+    for (std::size_t i = 0; i < 23 * 19; ++i) {
+      int c = 0;
+      for (const Image* img : src) {
+        for (int k = 0; k < img->channels(); ++k)
+          v[i * 10 + static_cast<std::size_t>(c++)] = img->plane(k)[i];
+      }
+    }
+    REQUIRE(out->open(f, spec));
+    REQUIRE(out->write_image(OIIO::TypeDesc::FLOAT, v.data()));
+    REQUIRE(out->close());
+    return f;
+  };
+  const std::string files[] = {write("scan.exr", 0, 0, false), write("half.exr", 0, 0, true),
+                               write("origin.exr", 0, 3, false), write("tiled.exr", 8, 0, false)};
+  for (const std::string& f : files) {
+    INFO(f);
+    io::PassInfo whole_info;
+    const Pass whole = io::read_pass(f, {}, &whole_info);
+    REQUIRE(whole.layout() == Layout{true, true, true, false});
+    require_close(whole.colour, p.colour, f.find("half") != std::string::npos ? 1e-3 : 0.0);
+    for (std::uint64_t strip : {std::uint64_t{1}, std::uint64_t{1000}}) {
+      io::ReadOptions o;
+      o.strip_bytes = strip;
+      io::PassInfo info;
+      const Pass r = io::read_pass(f, o, &info);
+      require_close(r.colour, whole.colour, 0);
+      require_close(r.albedo, whole.albedo, 0);
+      require_close(r.normal, whole.normal, 0);
+      require_close(r.depth, whole.depth, 0);
+      if (f.find("tiled") == std::string::npos) {
+        CHECK(info.read_bytes < whole_info.read_bytes);
+      } else {
+        CHECK(info.read_bytes == whole_info.read_bytes);
+      }
+    }
+  }
+}
+
 TEST_CASE("real Blender Cycles pass from samples/", "[io][real]") {
   io::PassInfo info;
   const Pass p = io::read_pass(samples("renders/cornell/pass_00.exr"), {}, &info);

@@ -28,6 +28,9 @@ struct ReadOptions {
   // The frame's size when it is known (its first pass, or the job's declaration): a pass of any
   // other size is refused from its header, before its pixels are decoded.
   std::optional<std::pair<int, int>> frame_size;
+  // Scanline files are decoded this many bytes of interleaved channels at a time (whole when
+  // tiled): a read's peak memory is its output planes plus one strip.
+  std::uint64_t strip_bytes = std::uint64_t{16} << 20;
 };
 
 enum class SppSource { header, option, assumed };
