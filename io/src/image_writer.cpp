@@ -4,10 +4,10 @@
 #include <OpenImageIO/imageio.h>
 #include <fcntl.h>
 #include <sys/stat.h>
-#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
@@ -131,19 +131,31 @@ void write_image_at(int dir_fd, const std::string& name, int width, int height,
   spec.attribute("compression", options.compression);
   for (const auto& [k, v] : options.attributes) spec.attribute(k, v);
 
-  // Planes to OIIO's interleaved pixels, blocks of pixels in parallel (a published 1080p frame
-  // is 27 planes, 220 MB: one thread spent ~0.4 s here, ahead of the threaded compression).
-  std::vector<float> interleaved(n * static_cast<std::size_t>(nch));
-  const std::size_t stride = channels.size();
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096),
-                    [&](const tbb::blocked_range<std::size_t>& r) {
-                      for (std::size_t p = r.begin(); p < r.end(); ++p) {
-                        float* px = interleaved.data() + p * stride;
-                        for (std::size_t c = 0; c < stride; ++c) px[c] = channels[c].data[p];
-                      }
-                    });
-  bool ok = out->set_ioproxy(&proxy) && out->open(tmp, spec) &&
-            out->write_image(OIIO::TypeDesc::FLOAT, interleaved.data());
+  // Planes to OIIO's interleaved pixels a strip of rows at a time, rows in parallel, each strip
+  // then encoded (OpenEXR compresses its chunks on its own threads). A published 1080p frame is 27
+  // planes, 224 MB: interleaved whole, it was a fresh mapping above glibc's 32 MiB mmap ceiling
+  // that the kernel faulted in and zeroed on every write; a strip stays in the reused heap
+  // (bench/RESULTS.md, "Reading and writing in strips").
+  const std::size_t stride = channels.size(), w = static_cast<std::size_t>(width);
+  const std::uint64_t row_bytes = static_cast<std::uint64_t>(w) * stride * sizeof(float);
+  std::uint64_t rows64 = std::max<std::uint64_t>(1, options.strip_bytes / row_bytes);
+  if (rows64 >= 32) rows64 -= rows64 % 32;
+  const int rows =
+      static_cast<int>(std::min<std::uint64_t>(rows64, static_cast<std::uint64_t>(height)));
+  std::vector<float> strip;
+  strip.resize(static_cast<std::size_t>(rows) * w * stride);
+  bool ok = out->set_ioproxy(&proxy) && out->open(tmp, spec);
+  for (int y0 = 0; ok && y0 < height; y0 += rows) {
+    const int y1 = std::min(y0 + rows, height);
+    tbb::parallel_for(y0, y1, [&](int y) {
+      const std::size_t first = static_cast<std::size_t>(y) * w;
+      float* px = strip.data() + static_cast<std::size_t>(y - y0) * w * stride;
+      for (std::size_t p = 0; p < w; ++p, px += stride) {
+        for (std::size_t c = 0; c < stride; ++c) px[c] = channels[c].data[first + p];
+      }
+    });
+    ok = out->write_scanlines(y0, y1, 0, OIIO::TypeDesc::FLOAT, strip.data());
+  }
   std::string err = ok ? "" : out->geterror();
   ok = out->close() && ok && proxy.failed() == 0;
   if (!ok) {

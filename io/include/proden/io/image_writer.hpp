@@ -5,6 +5,7 @@
 // its path has been swapped for a symlink meanwhile (the daemon's output confinement).
 #pragma once
 
+#include <cstdint>
 #include <span>
 #include <string>
 #include <utility>
@@ -24,6 +25,10 @@ struct WriteOptions {
   bool half = false;  // store as 16-bit half (EXR) instead of 32-bit float
   std::string compression = "zip";
   std::vector<std::pair<std::string, std::string>> attributes;  // string header attributes
+  // Scanlines are interleaved and handed to the encoder this many bytes at a time (a multiple of
+  // 32 rows where it can be: whole compression chunks), so the write holds one strip, not a copy
+  // of the image.
+  std::uint64_t strip_bytes = std::uint64_t{24} << 20;
 };
 
 // Throws std::runtime_error naming the path on failure; never leaves a partial file at `path`.
