@@ -27,8 +27,9 @@ struct WriteOptions {
   std::vector<std::pair<std::string, std::string>> attributes;  // string header attributes
   // Scanlines are interleaved and handed to the encoder this many bytes at a time (a multiple of
   // 32 rows where it can be: whole compression chunks), so the write holds one strip, not a copy
-  // of the image.
-  std::uint64_t strip_bytes = std::uint64_t{24} << 20;
+  // of the image. Below glibc's 32 MiB mmap ceiling; 1080p with 27 channels gets 128 rows, four
+  // PIZ chunks per call (24 MiB, three chunks, left one of two threads idle: bench/RESULTS.md).
+  std::uint64_t strip_bytes = std::uint64_t{30} << 20;
 };
 
 // Throws std::runtime_error naming the path on failure; never leaves a partial file at `path`.
