@@ -360,7 +360,7 @@ namespace {
 // one whole), so the peak is the output planes plus one strip. The strip stays below glibc's mmap
 // ceiling (32 MiB), so the daemon's heap reuses it: a whole 1080p run (100 MB for a 12-channel
 // Cycles pass) was a fresh mapping that the kernel faulted in and zeroed on every read
-// (bench/RESULTS.md, "Reading a pass in strips").
+// (bench/RESULTS.md, "Reading and writing in strips").
 class ChannelLoader {
  public:
   ChannelLoader(OIIO::ImageInput& in, const Header& h, const std::string& path,
