@@ -14,6 +14,8 @@
 #include <random>
 #include <stdexcept>
 
+#include "strips.hpp"
+
 namespace proden::io {
 namespace {
 
@@ -138,10 +140,8 @@ void write_image_at(int dir_fd, const std::string& name, int width, int height,
   // (bench/RESULTS.md, "Reading and writing in strips").
   const std::size_t stride = channels.size(), w = static_cast<std::size_t>(width);
   const std::uint64_t row_bytes = static_cast<std::uint64_t>(w) * stride * sizeof(float);
-  std::uint64_t rows64 = std::max<std::uint64_t>(1, options.strip_bytes / row_bytes);
-  if (rows64 >= 32) rows64 -= rows64 % 32;
   const int rows =
-      static_cast<int>(std::min<std::uint64_t>(rows64, static_cast<std::uint64_t>(height)));
+      strip_rows(options.strip_bytes, row_bytes, chunk_rows(options.compression), height);
   std::vector<float> strip;
   strip.resize(static_cast<std::size_t>(rows) * w * stride);
   bool ok = out->set_ioproxy(&proxy) && out->open(tmp, spec);

@@ -21,6 +21,7 @@
 
 #include "proden/error.hpp"
 #include "proden/io/text.hpp"
+#include "strips.hpp"
 
 namespace proden::io {
 namespace {
@@ -44,9 +45,9 @@ struct Header {
   std::vector<std::string> attribute_values;
   std::map<std::string, std::string> attributes;  // name -> value as string
   std::vector<OIIO::TypeDesc> channel_types;
-  // Per subimage: its first scanline's y and whether it is tiled (read whole, not in strips).
+  // Per subimage: its first scanline's y, and its scanlines per chunk (0: tiled, read whole).
   std::vector<int> part_y;
-  std::vector<char> part_tiled;
+  std::vector<int> part_chunk_rows;
 };
 
 std::string oiio_error(OIIO::ImageInput* in) {
@@ -163,7 +164,8 @@ Header read_header(OIIO::ImageInput& in, const HeaderSummary& summary, const std
   for (int s = 0; in.seek_subimage(s, 0); ++s) {
     const OIIO::ImageSpec& spec = in.spec();
     h.part_y.push_back(spec.y);
-    h.part_tiled.push_back(spec.tile_width > 0 ? 1 : 0);
+    h.part_chunk_rows.push_back(
+        spec.tile_width > 0 ? 0 : chunk_rows(spec.get_string_attribute("compression")));
     // The decoder must agree with the bounded header walk.
     if (s >= static_cast<int>(summary.parts.size()) ||
         static_cast<std::uint64_t>(std::max(spec.width, 0)) *
@@ -435,16 +437,14 @@ class ChannelLoader {
     return static_cast<std::uint64_t>(h_.width) * static_cast<std::uint64_t>(h_.height);
   }
   static std::size_t row_floats(const Run& r) { return static_cast<std::size_t>(r.end - r.begin); }
-  // Scanlines one read of run `r` decodes: the whole image when tiled, else a strip of about
-  // strip_bytes_, a multiple of 32 rows (OpenEXR's largest scanline chunk, PIZ's) when it can be.
+  // Scanlines one read of run `r` decodes: the whole image when tiled, else a strip of whole
+  // chunks of about strip_bytes_ (io/src/strips.hpp).
   int rows_per_read(const Run& r) const {
-    if (h_.part_tiled[static_cast<std::size_t>(r.subimage)]) return h_.height;
-    const std::uint64_t row_bytes =
-        static_cast<std::uint64_t>(h_.width) * row_floats(r) * sizeof(float);
-    std::uint64_t rows =
-        std::max<std::uint64_t>(1, strip_bytes_ / std::max<std::uint64_t>(row_bytes, 1));
-    if (rows >= 32) rows -= rows % 32;
-    return static_cast<int>(std::min<std::uint64_t>(rows, static_cast<std::uint64_t>(h_.height)));
+    const int chunk = h_.part_chunk_rows[static_cast<std::size_t>(r.subimage)];
+    if (chunk == 0) return h_.height;
+    return strip_rows(strip_bytes_,
+                      static_cast<std::uint64_t>(h_.width) * row_floats(r) * sizeof(float), chunk,
+                      h_.height);
   }
   // Rows [y0, y1) of the run's interleaved buffer into the output planes, rows in parallel.
   void scatter(const Run& r, const std::vector<float>& buf, int y0, int y1,

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include "../../io/src/strips.hpp"
 #include "proden/error.hpp"
 #include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
@@ -156,10 +157,29 @@ TEST_CASE("multi-part EXR: channels gathered across parts", "[io]") {
   require_close(r.albedo, p.albedo, 0);
 }
 
+TEST_CASE("strips hold whole compression chunks", "[io]") {
+  CHECK(io::chunk_rows("zip") == 16);
+  CHECK(io::chunk_rows("piz") == 32);
+  CHECK(io::chunk_rows("dwaa:45") == 32);
+  CHECK(io::chunk_rows("dwab") == 256);
+  CHECK(io::chunk_rows("none") == 1);
+  CHECK(io::chunk_rows("") == 1);
+  // 1080p, 27 float channels: 30 MiB holds 151 rows, so 128 (four PIZ chunks).
+  CHECK(io::strip_rows(30u << 20, 1920u * 27 * 4, 32, 1080) == 128);
+  // A budget below one chunk still reads one whole chunk, and never past the image.
+  CHECK(io::strip_rows(1, 1920u * 27 * 4, 16, 1080) == 16);
+  CHECK(io::strip_rows(1, 1920u * 27 * 4, 256, 100) == 100);
+  // Below 32 rows of budget: whole chunks of the file's own height.
+  CHECK(io::strip_rows(20u * 1000, 1000, 16, 1080) == 16);
+  CHECK(io::strip_rows(20u * 1000, 1000, 1, 1080) == 20);
+  // DWAB's 256-row chunks are not a divisor of 32: multiples of 256.
+  CHECK(io::strip_rows(600u * 1000, 1000, 256, 1080) == 512);
+}
+
 TEST_CASE("scanlines read in strips of any height equal one whole read", "[io]") {
-  // A strip of 1 byte is one row per decode, 1000 bytes a few rows (never a multiple of the file's
-  // 16-row chunks), the default the whole 19-row image; a tiled file is read whole whatever the
-  // strip. Values must match bit for bit, and a smaller strip must lower the read's peak.
+  // A strip of 1 byte or 1000 bytes is one 16-row ZIP chunk per decode (the 19-row image in two
+  // reads, the second of 3 rows), the default the whole image; a tiled file is read whole whatever
+  // the strip. Values must match bit for bit, and a smaller strip must lower the read's peak.
   test::TempDir dir;
   const Layout feats{true, true, true, false};
   const Pass p = test::make_pass(23, 19, 4, 7, feats);
