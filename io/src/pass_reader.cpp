@@ -412,9 +412,9 @@ class ChannelLoader {
       buf.resize(static_cast<std::size_t>(rows) * static_cast<std::size_t>(h_.width) *
                  row_floats(r));
       const bool whole = rows == h_.height;
+      const int top = h_.part_y[static_cast<std::size_t>(r.subimage)];
       for (int y0 = 0; y0 < h_.height; y0 += rows) {
         const int y1 = std::min(y0 + rows, h_.height);
-        const int top = h_.part_y[static_cast<std::size_t>(r.subimage)];
         const bool ok =
             whole ? in_.read_image(r.subimage, 0, r.begin, r.end, OIIO::TypeDesc::FLOAT, buf.data())
                   : in_.read_scanlines(r.subimage, 0, top + y0, top + y1, 0, r.begin, r.end,
