@@ -233,17 +233,28 @@ void BM_ClosedFormMixer(benchmark::State& state) {
 }
 BENCHMARK(BM_ClosedFormMixer)->Arg(1)->Arg(0);
 
+// Arg 0: the authors' window (11x11) or the fine one (5x5, docs/cascade.md); arg 1: variance of
+// exact origin, or from 8 passes pooled over 5x5 (the pipeline's case: Welch-Satterthwaite degrees
+// of freedom and the tabulated Student-t rejection curve).
 void BM_TRescale(benchmark::State& state) {
   const Frame& f = frame();
-  const TTestParams p;
+  const bool fine = state.range(0) != 0, dof = state.range(1) != 0;
+  TTestParams p;
+  if (fine) p = TTestParams{.radius = 2, .sigma_scale = 0.0f, .sigma_floor = 1.0f};
+  static const Image passes(kW, kW, 1, 8.0f);
+  static const Image pooled = pool_variance(f.var, 2);
+  const VarianceOrigin origin =
+      dof ? VarianceOrigin{view_of(passes), false, 2, view_of(f.var)} : VarianceOrigin{};
+  const View var = dof ? view_of(pooled) : view_of(f.var);
   Buffer out(kOut, 3);
   for (auto _ : state) {
-    t_rescale(view_of(f.x), view_of(f.var), view_of(f.y), view_of(f.alpha), kW, kW, kOut, p, out);
+    t_rescale(view_of(f.x), var, view_of(f.y), view_of(f.alpha), kW, kW, kOut, p, out, origin);
     benchmark::DoNotOptimize(out.at(kOut.x0, kOut.y0, 0));
   }
   state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(kOut.area()));
+  state.SetLabel(std::string(fine ? "5x5" : "11x11") + (dof ? ", 8 passes pooled" : ", exact"));
 }
-BENCHMARK(BM_TRescale);
+BENCHMARK(BM_TRescale)->Args({0, 0})->Args({0, 1})->Args({1, 1});
 
 void BM_AccumulatorAdd(benchmark::State& state) {
   const int n = static_cast<int>(state.range(0));

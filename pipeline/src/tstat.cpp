@@ -78,11 +78,17 @@ PRODEN_MULTIVERSION void lane_kernel(const Planes& pl, const Setup& s, int px0, 
                                      LaneStats& out) {
   const int R = s.radius, P = s.pool, S = R + P;
   double norm_a[kLanes], g_a[kMaxRadius + 1][kLanes];
+  double last_sigma = -1.0;  // the fine test's sigma is the same for every pixel: one exp
   for (int l = 0; l < kLanes; ++l) {
     const double mean_var = pl.vsum[pl.at(px0 + l, py)] / 3.0;
     const double sigma =
         std::max(s.sigma_scale * std::sqrt(std::clamp(mean_var, 0.0, 1.0)), s.sigma_floor);
     norm_a[l] = 1.0 / (sigma * kSqrt2Pi);
+    if (sigma == last_sigma) {
+      for (int d = 0; d <= R; ++d) g_a[d][l] = g_a[d][l - 1];
+      continue;
+    }
+    last_sigma = sigma;
     // k(dx, dy) = norm g(dx) g(dy) is separable, and g(d) = q^(d^2) with q = exp(-1 / 2 sigma^2)
     // follows from g(d) = g(d - 1) q^(2d - 1): one exponential per pixel.
     const double q = std::exp(-1.0 / (2.0 * sigma * sigma)), q2 = q * q;
@@ -147,16 +153,22 @@ PRODEN_MULTIVERSION void lane_kernel(const Planes& pl, const Setup& s, int px0, 
       hx[o + S] = sx;
       hy[o + S] = sy * (norm * norm);  // k^2 = norm^2 g^2 g^2
     }
+    // b_r = hy(ry) hx(rx): both sums by rows, sum_y hy (sum_x hx pbar) and the same in squares.
+    Lane hx2[kMaxSpan];
+    for (int o = 0; o <= 2 * S; ++o) hx2[o] = hx[o] * hx[o];
     for (int oy = -S; oy <= S; ++oy) {
-      for (int ox = -S; ox <= S; ++ox) {
-        const std::size_t b = pl.at(px0 + ox, py + oy);
-        const Lane w = hy[oy + S] * hx[ox + S];
+      Lane r1{}, r2{};
+      const std::size_t row = pl.at(px0 - S, py + oy);
+      for (int o = 0; o <= 2 * S; ++o) {
         Lane pb, q;
-        PRODEN_LOAD(pb, pl.pbar.data() + b);
-        PRODEN_LOAD(q, pl.q.data() + b);
-        a1 += w * pb;
-        a2 += w * w * q;
+        PRODEN_LOAD(pb, pl.pbar.data() + row + o);
+        PRODEN_LOAD(q, pl.q.data() + row + o);
+        r1 += hx[o] * pb;
+        r2 += hx2[o] * q;
       }
+      const Lane wy = hy[oy + S];
+      a1 += wy * r1;
+      a2 += wy * wy * r2;
     }
   }
 
@@ -403,8 +415,11 @@ double RejectionCurve::normal_score(const Row& r, double t) const {
   if (a >= at(u_cols_ - 1)) return u_hi;
   int j0 = 0, j1 = u_cols_ - 1;  // at(j0) < a < at(j1); the row increases with u
   while (j1 - j0 > 1) {
+    // Bisection by selects, not branches: which half holds a is a coin flip per probe.
     const int mid = (j0 + j1) / 2;
-    (at(mid) <= a ? j0 : j1) = mid;
+    const bool below = at(mid) <= a;
+    j0 = below ? mid : j0;
+    j1 = below ? j1 : mid;
   }
   const double r0 = at(j0), r1 = at(j1);
   return u_lo_ + du_ * (j0 + std::clamp((a - r0) / (r1 - r0), 0.0, 1.0));
@@ -422,6 +437,14 @@ double RejectionCurve::keep(double t, double dof) const {
 void RejectionCurve::keep(const double* t, int n, double dof, double* out) const {
   if (std::isinf(dof)) {
     for (int i = 0; i < n; ++i) out[i] = upper_normal_tail(slope_ * (t[i] - t0_));
+    return;
+  }
+  // Every row starts at or above the normal row's first t (a quantile grows as dof falls), so
+  // statistics at or below it keep keep_lo_ whatever the dof: most pixels, without a row.
+  bool low = true;
+  for (int i = 0; i < n; ++i) low = low && t[i] <= first_t_.front();
+  if (low) {
+    for (int i = 0; i < n; ++i) out[i] = keep_lo_;
     return;
   }
   const Row r = row(dof);
