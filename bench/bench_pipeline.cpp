@@ -10,7 +10,11 @@
 //   1080p.
 //
 //   proden_bench_pipeline [--width W --height H] [--no-4k] [--no-mc] [--no-io] [--threads N]
-//                         [--cycles-spp-seconds S] [--json FILE] [--tmp DIR]
+//                         [--cycles-spp-seconds S] [--json FILE] [--tmp DIR] [--repeat N]
+//
+// --repeat N: the estimate and each pipeline run N times on the same objects (warm scratch and
+// heap, as in a daemon that keeps a frame), each stage's median reported; 1 (the default) is
+// one cold call, whose time includes first-touch page faults.
 #include <tbb/global_control.h>
 
 #include <sys/resource.h>
@@ -66,6 +70,28 @@ double cpu_seconds() {
 
 using bench::synthetic_pass;
 
+// Per-field median of repeated runs' timings.
+StageTimings median_timings(std::vector<StageTimings> runs) {
+  const auto med = [&](double StageTimings::*field) {
+    std::vector<double> v;
+    for (const StageTimings& t : runs) v.push_back(t.*field);
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  StageTimings m;
+  for (double StageTimings::*f :
+       {&StageTimings::denoise, &StageTimings::sure, &StageTimings::mixer, &StageTimings::ttest,
+        &StageTimings::compose, &StageTimings::cross_validation, &StageTimings::wall}) {
+    m.*f = med(f);
+  }
+  return m;
+}
+
+double median(std::vector<double> v) {
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
 // The denoiser alone (no Jacobian), tiled and parallel like the pipeline: "one denoiser run".
 double denoise_only(const FrameEstimate& est, const PipelineOptions& po) {
   const NlMeansDenoiser nl(po.nlmeans);
@@ -104,6 +130,7 @@ int main(int argc, char** argv) {
   std::vector<std::pair<int, int>> sizes = {{1920, 1080}, {3840, 2160}};
   int w = 0, h = 0;
   bool mc = true, io = true, four_k = true;
+  int repeat = 1;
   double cycles_spp_s = 0;
   std::string json_path, tmp = fs::temp_directory_path().string();
   unsigned cores = std::max(1u, std::thread::hardware_concurrency());
@@ -128,11 +155,14 @@ int main(int argc, char** argv) {
       json_path = argv[++i];
     else if (a == "--tmp" && more)
       tmp = argv[++i];
+    else if (a == "--repeat" && more)
+      repeat = std::max(1, std::atoi(argv[++i]));
     else {
-      std::fprintf(stderr,
-                   "usage: %s [--width W --height H] [--no-4k] [--no-mc] [--no-io] "
-                   "[--threads N] [--cycles-spp-seconds S] [--json FILE] [--tmp DIR]\n",
-                   argv[0]);
+      std::fprintf(
+          stderr,
+          "usage: %s [--width W --height H] [--no-4k] [--no-mc] [--no-io] "
+          "[--threads N] [--cycles-spp-seconds S] [--json FILE] [--tmp DIR] [--repeat N]\n",
+          argv[0]);
       return 2;
     }
   }
@@ -148,8 +178,9 @@ int main(int argc, char** argv) {
   std::printf(
       "synthetic Cycles-like frames: HDR+ALB+NRM+DEP, %d passes x %.0f spp; default "
       "pipeline (NL-means r=5 f=3, closed-form Stein mixer r=12, t-test, tile 256); "
-      "threads 1 and %u\n",
-      npass, spp_per_pass, cores);
+      "threads 1 and %u; estimate and pipeline: %s\n",
+      npass, spp_per_pass, cores,
+      repeat > 1 ? ("median of " + std::to_string(repeat) + " warm runs").c_str() : "one cold run");
   for (const auto& [W, H] : sizes) {
     SizeResult s;
     s.w = W;
@@ -196,9 +227,14 @@ int main(int argc, char** argv) {
         add += since(t0);
       }
       s.add_s[ti] = add / npass;
-      const auto t0 = Clock::now();
-      FrameEstimate e = acc.estimate();
-      s.estimate_s[ti] = since(t0);
+      FrameEstimate e;
+      std::vector<double> est_s;
+      for (int i = 0; i < repeat; ++i) {
+        const auto t0 = Clock::now();
+        e = acc.estimate();
+        est_s.push_back(since(t0));
+      }
+      s.estimate_s[ti] = median(est_s);
       s.state_bpp = static_cast<double>(acc.state_bytes()) / (static_cast<double>(W) * H);
       s.layout_bpp = static_cast<double>(FrameAccumulator::bytes_per_pixel(acc.layout()));
       if (ti == 1) est = std::move(e);
@@ -214,9 +250,16 @@ int main(int argc, char** argv) {
       Pipeline pipeline(o);
       pipeline.commit();
       const double c0 = cpu_seconds();
-      PipelineResult r = pipeline.execute(est);
-      s.cores_obtained[ti] = (cpu_seconds() - c0) / r.timings.wall;
-      s.an[ti] = r.timings;
+      PipelineResult r;
+      std::vector<StageTimings> runs;
+      double wall = 0;
+      for (int i = 0; i < repeat; ++i) {
+        r = pipeline.execute(est);
+        runs.push_back(r.timings);
+        wall += r.timings.wall;
+      }
+      s.cores_obtained[ti] = (cpu_seconds() - c0) / wall;
+      s.an[ti] = median_timings(runs);
       s.denoise_only_s[ti] = denoise_only(est, o);
       if (ti == 1) run = std::move(r);
     }
@@ -332,7 +375,7 @@ int main(int argc, char** argv) {
       std::perror(json_path.c_str());
       return 1;
     }
-    std::fprintf(f, "{\n \"threads\": %u,\n \"sizes\": [\n", cores);
+    std::fprintf(f, "{\n \"threads\": %u,\n \"repeat\": %d,\n \"sizes\": [\n", cores, repeat);
     for (std::size_t i = 0; i < results.size(); ++i) {
       const SizeResult& s = results[i];
       std::fprintf(

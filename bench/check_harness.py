@@ -28,11 +28,14 @@ def main():
         js = os.path.join(d, "perf.json")
         out = subprocess.run([os.path.join(bindir, "proden_bench_pipeline"), "--width", "64",
                               "--height", "48", "--no-mc", "--no-4k", "--cycles-spp-seconds", "1",
-                              "--json", js, "--tmp", d], capture_output=True, text=True)
+                              "--repeat", "3", "--json", js, "--tmp", d],
+                             capture_output=True, text=True)
         print(out.stdout)
         if out.returncode != 0:
             fail(f"proden_bench_pipeline exit {out.returncode}: {out.stderr}")
         p = json.load(open(js))
+        if p.get("repeat") != 3:
+            fail(f"repeat = {p.get('repeat')}")
         s = p["sizes"][0]
         if (s["width"], s["height"]) != (64, 48):
             fail("size")
