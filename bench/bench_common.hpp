@@ -9,11 +9,18 @@
 #include <algorithm>
 #include <cmath>
 #include <random>
+#include <vector>
 
 #include "proden/denoise/denoiser.hpp"
 #include "proden/pass.hpp"
 
 namespace proden::bench {
+
+// The upper median of repeated timings (0 for none).
+inline double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
+}
 
 inline Pass synthetic_pass(int w, int h, int k, double spp) {
   std::mt19937 rng(static_cast<unsigned>(1000 + k));

@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "bench_common.hpp"
 #include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
 
@@ -31,11 +32,6 @@ constexpr std::uint64_t kWhole = std::numeric_limits<std::uint64_t>::max();
 
 double since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
-}
-
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.empty() ? 0.0 : v[v.size() / 2];
 }
 
 }  // namespace
@@ -101,7 +97,7 @@ int main(int argc, char** argv) {
   std::printf("%s: %dx%d; %d rounds, configurations alternating\n", pass_path.c_str(), W, H,
               repeat);
   for (const auto& [name, v] : times) {
-    std::printf("%-32s median %.3f s  (", name.c_str(), median(v));
+    std::printf("%-32s median %.3f s  (", name.c_str(), bench::median(v));
     for (std::size_t i = 0; i < v.size(); ++i) std::printf("%s%.3f", i ? " " : "", v[i]);
     std::printf(")\n");
   }

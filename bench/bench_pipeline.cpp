@@ -71,25 +71,16 @@ double cpu_seconds() {
 using bench::synthetic_pass;
 
 // Per-field median of repeated runs' timings.
-StageTimings median_timings(std::vector<StageTimings> runs) {
-  const auto med = [&](double StageTimings::*field) {
-    std::vector<double> v;
-    for (const StageTimings& t : runs) v.push_back(t.*field);
-    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-    return v[v.size() / 2];
-  };
+StageTimings median_timings(const std::vector<StageTimings>& runs) {
   StageTimings m;
   for (double StageTimings::*f :
        {&StageTimings::denoise, &StageTimings::sure, &StageTimings::mixer, &StageTimings::ttest,
         &StageTimings::compose, &StageTimings::cross_validation, &StageTimings::wall}) {
-    m.*f = med(f);
+    std::vector<double> v;
+    for (const StageTimings& t : runs) v.push_back(t.*f);
+    m.*f = bench::median(v);
   }
   return m;
-}
-
-double median(std::vector<double> v) {
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-  return v[v.size() / 2];
 }
 
 // The denoiser alone (no Jacobian), tiled and parallel like the pipeline: "one denoiser run".
@@ -234,7 +225,7 @@ int main(int argc, char** argv) {
         e = acc.estimate();
         est_s.push_back(since(t0));
       }
-      s.estimate_s[ti] = median(est_s);
+      s.estimate_s[ti] = bench::median(est_s);
       s.state_bpp = static_cast<double>(acc.state_bytes()) / (static_cast<double>(W) * H);
       s.layout_bpp = static_cast<double>(FrameAccumulator::bytes_per_pixel(acc.layout()));
       if (ti == 1) est = std::move(e);
@@ -262,7 +253,7 @@ int main(int argc, char** argv) {
       s.an[ti] = median_timings(runs);
       std::vector<double> alone;  // the same number of runs, so the ratios compare like with like
       for (int i = 0; i < repeat; ++i) alone.push_back(denoise_only(est, o));
-      s.denoise_only_s[ti] = median(alone);
+      s.denoise_only_s[ti] = bench::median(alone);
       if (ti == 1) run = std::move(r);
     }
     if (mc && (W * H <= 1920 * 1080 || sizes.size() == 1)) {
