@@ -4,7 +4,7 @@
 Generated parts: accuracy.md + accuracy_summary.json (bench/accuracy.py), perf.json + perf.txt
 (proden_bench_pipeline), cycles_1080p.json (Blender, same run), micro.txt (Google Benchmark).
 Hand-written parts, included verbatim: accumulation.md, daemon.md, dashboard.md, hostile.md,
-soak.md, farm.md, few_passes.md, savings.md, nlmeans_fast.md (measurements made by other tools;
+soak.md, farm.md, few_passes.md, savings.md, nlmeans_fast.md, ci.md (measurements made by other tools;
 edit them there, not in RESULTS.md); nfor.md is written by bench/nfor_results.py, fuzz.md by
 `make fuzz` (fuzz/run.py).
 """
@@ -244,7 +244,7 @@ def main():
     if fast:
         L.append(fast)
     for part in ("nfor.md", "savings.md", "accumulation.md", "daemon.md", "dashboard.md",
-                 "hostile.md", "soak.md", "farm.md", "fuzz.md"):
+                 "hostile.md", "soak.md", "farm.md", "fuzz.md", "ci.md"):
         t = read(part)
         if t:
             L.append(t)
