@@ -6,6 +6,7 @@
 #include <limits>
 #include <map>
 
+#include "fail.hpp"
 #include "proden/error.hpp"
 #include "proden/io/text.hpp"
 
@@ -14,9 +15,7 @@ namespace {
 
 constexpr std::array<std::uint8_t, 4> kExrMagic = {0x76, 0x2f, 0x31, 0x01};
 
-[[noreturn]] void fail(InputErrorKind kind, const std::string& name, const std::string& reason) {
-  throw InputError(kind, printable(name), printable(reason));
-}
+using detail::fail;
 
 bool starts_with(std::span<const std::uint8_t> head, std::string_view prefix) {
   return head.size() >= prefix.size() &&

@@ -19,6 +19,7 @@
 #include <sstream>
 #include <system_error>
 
+#include "fail.hpp"
 #include "proden/error.hpp"
 #include "proden/io/text.hpp"
 #include "strips.hpp"
@@ -26,11 +27,7 @@
 namespace proden::io {
 namespace {
 
-// Every InputError leaving the reader carries printable text: the reason may quote channel names,
-// header values or decoder messages, all of which are the file's bytes.
-[[noreturn]] void fail(InputErrorKind kind, const std::string& name, const std::string& reason) {
-  throw InputError(kind, printable(name), printable(reason));
-}
+using detail::fail;
 
 struct ChannelRef {
   int subimage = 0;

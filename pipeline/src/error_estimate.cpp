@@ -12,7 +12,7 @@
 namespace proden {
 namespace {
 
-constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kInfinity = std::numeric_limits<double>::infinity();
 constexpr double kRelEps = 0.01;        // relMSE's denominator z^2 + 0.01 (README "eval")
 constexpr double kPixelsPerDraw = 4.0;  // Cycles' 1.5 px filter: ~2x2 pixels share samples
 
@@ -22,7 +22,7 @@ struct Sums {
   double v = 0, d = 0, f = 0;
   // value at variance scale lambda (lambda = inf: +inf unless both scaled parts vanish)
   double at(double lambda) const {
-    if (std::isinf(lambda)) return (v > 0 || f > 0) ? kInf : std::max(d, 0.0);
+    if (std::isinf(lambda)) return (v > 0 || f > 0) ? kInfinity : std::max(d, 0.0);
     return std::max(lambda * v + d, lambda * f);
   }
   // min and max over lambda in [lo, hi]: the function is convex (a max of two lines), so the max
@@ -81,7 +81,7 @@ std::vector<double> box_max(const std::vector<double>& a, int W, int H, int r) {
   std::vector<double> t(a.size()), out(a.size());
   for (int y = 0; y < H; ++y) {
     for (int x = 0; x < W; ++x) {
-      double m = -kInf;
+      double m = -kInfinity;
       for (int d = -r; d <= r; ++d)
         m = std::max(m, a[static_cast<std::size_t>(y) * W + std::clamp(x + d, 0, W - 1)]);
       t[static_cast<std::size_t>(y) * W + x] = m;
@@ -89,7 +89,7 @@ std::vector<double> box_max(const std::vector<double>& a, int W, int H, int r) {
   }
   for (int y = 0; y < H; ++y) {
     for (int x = 0; x < W; ++x) {
-      double m = -kInf;
+      double m = -kInfinity;
       for (int d = -r; d <= r; ++d)
         m = std::max(m, t[static_cast<std::size_t>(std::clamp(y + d, 0, H - 1)) * W + x]);
       out[static_cast<std::size_t>(y) * W + x] = m;
@@ -279,7 +279,7 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
 
   // Sampling error of the pixel averages (absolute).
   const double se_m = dm.se(N), se_r = dr.se(N);
-  e.sampling_rse = se_m == 0.0 ? 0.0 : e.mse > 0 ? se_m / e.mse : kInf;
+  e.sampling_rse = se_m == 0.0 ? 0.0 : e.mse > 0 ? se_m / e.mse : kInfinity;
 
   // Effective degrees of freedom of the variance scale.
   double dof_pixel = 0.0;
@@ -293,7 +293,7 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
                            : 1.0;
   const double dof = dof_pixel * draws;
   const double alpha = 1.0 - ctx.confidence;
-  double lo = 0.0, hi = kInf;
+  double lo = 0.0, hi = kInfinity;
   if (dof > 0) {
     namespace bm_ = boost::math;
     const bm_::chi_squared_distribution<double> chi(dof);
@@ -331,16 +331,16 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   // average adds to relmse: eq(lambda, x) = spp * q / max(r.v + (r.d + x) / lambda, r.f + x /
   // lambda), non-decreasing in lambda; a non-positive denominator is unbounded.
   auto eq = [&](double lambda, double err) {
-    if (!(q > 0)) return kInf;  // a noise-free frame: plain MC is exact already
+    if (!(q > 0)) return kInfinity;  // a noise-free frame: plain MC is exact already
     double denom;
     if (lambda <= 0) {
-      denom = (r.d + err > 0 || err > 0) ? kInf : std::max(r.v, r.f);
+      denom = (r.d + err > 0 || err > 0) ? kInfinity : std::max(r.v, r.f);
     } else if (std::isinf(lambda)) {
       denom = std::max(r.v, r.f);
     } else {
       denom = std::max(r.v + (r.d + err) / lambda, r.f + err / lambda);
     }
-    return denom > 0 ? ctx.spp * q / denom : kInf;
+    return denom > 0 ? ctx.spp * q / denom : kInfinity;
   };
   e.equivalent_spp = e.relmse > 0 ? ctx.spp * q / e.relmse : eq(1.0, 0.0);
   e.equivalent_spp_low =

@@ -18,8 +18,23 @@
 #include "proden/network/pdnet.hpp"
 
 namespace proden {
+namespace detail {
+
+// A denoiser's output over a region with what SURE needs: y, dy/dx (analytic divergence only),
+// the divergence and SURE itself. Outside the anonymous namespace below because
+// Pipeline::Scratch (external linkage) holds one.
+struct Denoised {
+  Buffer y, dydx, div, sure;
+  std::size_t floats() const {
+    return y.capacity() + dydx.capacity() + div.capacity() + sure.capacity();
+  }
+};
+
+}  // namespace detail
+
 namespace {
 
+using detail::Denoised;
 using Clock = std::chrono::steady_clock;
 
 double seconds(Clock::time_point a, Clock::time_point b) {
@@ -80,15 +95,6 @@ bool all_zero(const Image& img) {
   const auto d = img.data();
   return std::all_of(d.begin(), d.end(), [](float v) { return v == 0.0f; });
 }
-
-// A denoiser's output over a region with what SURE needs: y, dy/dx (analytic divergence only),
-// the divergence and SURE itself.
-struct Denoised {
-  Buffer y, dydx, div, sure;
-  std::size_t floats() const {
-    return y.capacity() + dydx.capacity() + div.capacity() + sure.capacity();
-  }
-};
 
 // Covers the frame with stages 1-2's buffers (dy/dx only for the analytic divergence).
 void reset_full(Denoised& d, const Rect& image, bool analytic) {

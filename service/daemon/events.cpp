@@ -16,9 +16,9 @@ std::uint64_t EventHub::publish(const std::string& type, const nlohmann::json& d
   const std::uint64_t id = next_id_++;
   // Event data is UTF-8 by construction (pass-reader text is io::printable); `replace` keeps a
   // missed byte from ever throwing here, on a worker thread, with a frame half-reported.
-  const std::string json = data.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+  const std::string text = data.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
   auto wire = std::make_shared<const std::string>("id: " + std::to_string(id) + "\nevent: " + type +
-                                                  "\ndata: " + json + "\n\n");
+                                                  "\ndata: " + text + "\n\n");
   history_.push_back({id, wire});
   while (history_.size() > limit_) history_.pop_front();
   // Deliver under the lock so every sink sees events in id order (deliver only queues).

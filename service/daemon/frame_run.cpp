@@ -25,12 +25,12 @@ namespace proden::daemon {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-using Clock = std::chrono::steady_clock;
+using Steady = std::chrono::steady_clock;
 
 namespace {
 
-double seconds_since(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
+double seconds_since(Steady::time_point t0) {
+  return std::chrono::duration<double>(Steady::now() - t0).count();
 }
 
 // The frame status fields an event repeats.
@@ -101,7 +101,7 @@ FrameRun::Outcome FrameRun::run(Input in) {
     if (!acc || !aovs) {
       aovs = std::make_shared<AovAccumulator>();
       if (in.has_state) {
-        const auto t0 = Clock::now();
+        const auto t0 = Steady::now();
         JobStore::LoadedState loaded = store_.load_frame(job_id, frame_no);
         acc = std::make_shared<FrameAccumulator>(std::move(loaded.acc));
         *aovs = std::move(loaded.aovs);
@@ -153,7 +153,7 @@ FrameRun::Outcome FrameRun::run(Input in) {
   std::uint64_t accepted_bytes = 0;
   for (const auto& p : batch) {
     try {
-      auto t0 = Clock::now();
+      auto t0 = Steady::now();
       // Opened once, at the moment of use: beneath its root, within the read limits.
       store_.fault_point("read", p.path);
       auto src = read_pending_pass(p, in.roots, ro, spec.output.aovs);
@@ -169,7 +169,7 @@ FrameRun::Outcome FrameRun::run(Input in) {
       const io::PassInfo& info = src->info;
       const std::vector<AovChannel>& pass_aovs = src->aovs;
       metrics_.observe("proden_stage_duration_seconds", "read", seconds_since(t0));
-      t0 = Clock::now();
+      t0 = Steady::now();
       const AddResult r = acc->add(pass, p.pass);
       // The colour was accepted: its AOVs follow (same size; nothing in add() throws then).
       aovs->add(pass_aovs, pass.spp, info.aov_attributes);
@@ -211,7 +211,7 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
     // run: only the record, which needs their result, is left for the commit below.
     std::unique_ptr<FrameStateWriter> state;
     if (!accepted.empty()) state = store_.begin_frame_save(job_id, frame_no, *acc, *aovs);
-    auto t0 = Clock::now();
+    auto t0 = Steady::now();
     const FrameEstimate est = acc->estimate(FrameProcessor::estimate_options(spec.pipeline));
     metrics_.observe("proden_stage_duration_seconds", "estimate", seconds_since(t0));
     ErrorContext ectx;
@@ -263,7 +263,7 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
         metrics_.inc("proden_frames_unconverged_total");
       }
       dropped_versions = add_version(rec.versions, rec.version, spec.output.history);
-      t0 = Clock::now();
+      t0 = Steady::now();
       rec.digest = state->digest();  // waits for the statistics to be written
       // The commit point: statistics and pass identities together, atomically.
       store_.commit_frame(job_id, *state, rec);
@@ -283,7 +283,7 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
         spdlog::warn("job {} frame {}: keeping uploads: {}", job_id, frame_no, e.what());
       }
     }
-    t0 = Clock::now();
+    t0 = Steady::now();
     // The output directory is opened (and created) beneath its root now, and the files are
     // written through that descriptor: a symlink swapped in since the job was created is refused.
     UniqueFd out_dir;

@@ -11,7 +11,7 @@
 namespace proden::daemon {
 
 namespace fs = std::filesystem;
-using Clock = std::chrono::steady_clock;
+using Steady = std::chrono::steady_clock;
 
 bool is_temp_name(const std::string& name) {
   if (name.empty() || name.front() == '.' || name.back() == '~') return true;
@@ -108,7 +108,7 @@ void Watcher::watch_dir(const std::string& id, const fs::path& dir, int depth) {
 }
 
 void Watcher::run() {
-  auto last_scan = Clock::now() - std::chrono::hours(1);
+  auto last_scan = Steady::now() - std::chrono::hours(1);
   while (!stop_) {
     pollfd fds[2] = {{inotify_fd_, POLLIN, 0}, {wake_fd_, POLLIN, 0}};
     ::poll(fds, 2, config_.tick_ms);
@@ -120,7 +120,7 @@ void Watcher::run() {
     std::lock_guard lock(mu_);
     try {
       if (inotify_fd_ >= 0 && (fds[0].revents & POLLIN)) read_inotify();
-      const auto now = Clock::now();
+      const auto now = Steady::now();
       if (rescan_.exchange(false) ||
           now - last_scan >= std::chrono::milliseconds(config_.poll_interval_ms)) {
         for (const auto& [id, job] : jobs_) scan_job(id, job);
@@ -223,11 +223,11 @@ void Watcher::consider(const std::string& id, const Job& job, const fs::path& pa
   f.mtime_ns = mtime_ns(path, ec);
   if (ec) return;
   if (!cb_.wanted(f)) return;
-  candidates_.emplace(key, Candidate{f, Clock::now()});
+  candidates_.emplace(key, Candidate{f, Steady::now()});
 }
 
 void Watcher::check_candidates() {
-  const auto now = Clock::now();
+  const auto now = Steady::now();
   const auto settle = std::chrono::milliseconds(config_.settle_ms);
   for (auto it = candidates_.begin(); it != candidates_.end();) {
     Candidate& c = it->second;

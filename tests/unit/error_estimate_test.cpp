@@ -9,6 +9,7 @@
 #include "proden/accumulator.hpp"
 #include "proden/error_estimate.hpp"
 #include "proden/progressive.hpp"
+#include "test_support.hpp"
 
 using namespace proden;
 
@@ -42,14 +43,7 @@ FrameEstimate accumulate(const Image& truth, int passes, float sigma, std::uint6
   return acc.estimate({.halves = false, .features = false});
 }
 
-double mse(const Image& a, const Image& b) {
-  double s = 0;
-  for (std::size_t i = 0; i < a.data().size(); ++i) {
-    const double d = static_cast<double>(a.data()[i]) - b.data()[i];
-    s += d * d;
-  }
-  return s / static_cast<double>(a.data().size());
-}
+using test::mse;
 
 // z = x + a (y - x) with y = the truth (a perfect denoiser that ignores x: div = 0, so
 // SURE(y) = (y - x)^2 - Var[x]); a constant alpha.

@@ -296,15 +296,7 @@ TEST_CASE("NFOR denoises a noisy frame", "[nfor]") {
 
 namespace {
 
-// Mean squared error of an image against a truth.
-double mse(const Image& a, const Image& truth) {
-  double s = 0;
-  for (std::size_t i = 0; i < a.data().size(); ++i) {
-    const double d = static_cast<double>(a.data()[i]) - truth.data()[i];
-    s += d * d;
-  }
-  return s / static_cast<double>(a.data().size());
-}
+using test::mse;
 
 // The frame's features replaced: fn(x, y, albedo[3], normal[3], depth) for both halves.
 template <class Fn>
