@@ -207,9 +207,7 @@ class UploadTest(unittest.TestCase):
             d = Daemon(root, config={"limits": {"max_upload_bytes": 512 << 20}}).start()
             try:
                 jid = d.create_job("huge")
-                # Under ThreadSanitizer (streaming 800 MiB takes a minute there) 256 MiB each: one
-                # body held in memory still exceeds the 200 MiB bound below.
-                size = (256 if SLOWDOWN > 1 else 400) << 20
+                size = 400 << 20
                 base = vm_hwm_mib(d)
                 results = {}
 
