@@ -41,7 +41,7 @@ FUZZ_TARGETS ?= pass_reader,weights,frame_state,job_config,http_request,watch_pa
 FUZZ_SMOKE_SECONDS ?= 20
 # Unity builds (CMake batches of 8 sources compiled as one): each batch parses the Boost, Beast,
 # OIIO and Catch2 headers once instead of eight times. make test's Release tree builds in 4.8
-# minutes instead of 8 (bench/RESULTS.md "make test's own time"). UNITY=OFF builds file by file,
+# minutes instead of 7.9 (bench/RESULTS.md "make test's own time"). UNITY=OFF builds file by file,
 # faster when one source changes.
 UNITY     ?= ON
 CMAKE_COMMON = -DCMAKE_UNITY_BUILD=$(UNITY) -DPRODEN_WERROR=$(WERROR)
