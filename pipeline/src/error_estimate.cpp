@@ -6,8 +6,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <stdexcept>
-#include <vector>
 
 namespace proden {
 namespace {
@@ -76,9 +76,17 @@ constexpr int kStandInRadius = 3;
 // leaving out one value does not remove (measured: it took glass's 128-spp NL-means cell from
 // 0.65 to 0.36 of the truth).
 
-// Maximum over the clamped (2r+1)^2 window of each element (separable).
-std::vector<double> box_max(const std::vector<double>& a, int W, int H, int r) {
-  std::vector<double> t(a.size()), out(a.size());
+// A frame-sized plane of doubles, left uninitialised: estimate_error writes every element before
+// reading it. Value-initialised vectors zero-filled ~1 GB per call on a 4-megapixel frame (five
+// per-element planes and four filter planes, per channel), most of a 2048x2048 update's time
+// with no denoiser (bench/results/ci.md).
+using Plane = std::unique_ptr<double[]>;
+Plane plane(std::size_t n) {
+  return std::make_unique_for_overwrite<double[]>(n);
+}
+
+// Maximum over the clamped (2r+1)^2 window of each element (separable; `t` is scratch).
+void box_max(const double* a, double* t, double* out, int W, int H, int r) {
   for (int y = 0; y < H; ++y) {
     for (int x = 0; x < W; ++x) {
       double m = -kInfinity;
@@ -95,12 +103,10 @@ std::vector<double> box_max(const std::vector<double>& a, int W, int H, int r) {
       out[static_cast<std::size_t>(y) * W + x] = m;
     }
   }
-  return out;
 }
 
-// Mean over the clamped (2r+1)^2 window of each element (separable running sums).
-std::vector<double> box_mean(const std::vector<double>& a, int W, int H, int r) {
-  std::vector<double> t(a.size()), out(a.size());
+// Mean over the clamped (2r+1)^2 window of each element (separable; `t` is scratch).
+void box_mean(const double* a, double* t, double* out, int W, int H, int r) {
   for (int y = 0; y < H; ++y) {
     for (int x = 0; x < W; ++x) {
       double s = 0;
@@ -118,7 +124,6 @@ std::vector<double> box_mean(const std::vector<double>& a, int W, int H, int r) 
       out[static_cast<std::size_t>(y) * W + x] = s * k;
     }
   }
-  return out;
 }
 
 void check(const Image* img, const Image& like, const char* what) {
@@ -194,6 +199,11 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   Sums m, r;       // MSE and relMSE sums
   double q = 0;    // sum of w v: the render's own relMSE
   DiffVar dm, dr;  // neighbour differences of the MSE and relMSE terms
+  // Per element, reused by each channel: the error terms (below), the stand-in's inputs, their
+  // window means and maximum, and the filters' scratch.
+  const Plane EV = plane(n), ED = plane(n), F = plane(n), Z = plane(n), Epos = plane(n);
+  const Plane zbar = plane(n), ebar = plane(n), tmp = plane(n);
+  const Plane zmax = denoised ? Plane() : plane(n);
   for (int c = 0; c < 3; ++c) {
     const auto xv = x.plane(c), vv = in.variance->plane(c), zv = in.result->plane(c);
     std::span<const float> yv, av, sv, qv, bv;
@@ -207,7 +217,6 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
       bv = in.cv_variance->plane(c);
     }
     // Per element: the error terms (below), then the relMSE weights from the stand-in.
-    std::vector<double> EV(n), ED(n), F(n), Z(n), Epos(n);
     for (std::size_t i = 0; i < n; ++i) {
       // The terms of docs/error_estimate.md, "The model" (non-finite values count as 0). The
       // frame mean is taken without per-element clamping (that would bias it up, 4-5x on
@@ -225,12 +234,11 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
       Z[i] = std::isfinite(zv[i]) ? zv[i] : 0.0;
       Epos[i] = std::max({ev + ed, f, 0.0});
     }
-    const std::vector<double> zbar = box_mean(Z, W, H, kStandInRadius);
-    const std::vector<double> ebar = box_mean(Epos, W, H, kStandInRadius);
+    box_mean(Z.get(), tmp.get(), zbar.get(), W, H, kStandInRadius);
+    box_mean(Epos.get(), tmp.get(), ebar.get(), W, H, kStandInRadius);
     const double window = (2.0 * kStandInRadius + 1) * (2.0 * kStandInRadius + 1);
     const double draws_per_window = std::max(1.0, window / kPixelsPerDraw);
-    const std::vector<double> zmax =
-        denoised ? std::vector<double>() : box_max(Z, W, H, kStandInRadius);
+    if (!denoised) box_max(Z.get(), tmp.get(), zmax.get(), W, H, kStandInRadius);
     for (int py = 0; py < H; ++py) {
       double prev[2] = {0, 0};
       for (int px = 0; px < W; ++px) {
