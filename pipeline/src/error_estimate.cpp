@@ -78,8 +78,8 @@ constexpr int kStandInRadius = 3;
 
 // A frame-sized plane of doubles, left uninitialised: estimate_error writes every element before
 // reading it. Value-initialised vectors zero-filled ~1 GB per call on a 4-megapixel frame (five
-// per-element planes and four filter planes, per channel), most of a 2048x2048 update's time
-// with no denoiser (bench/results/ci.md).
+// per-element planes and four filter planes, per channel): 45 % of the daemon's samples on a
+// 2048x2048 update with no denoiser (bench/results/daemon.md).
 using Plane = std::unique_ptr<double[]>;
 Plane plane(std::size_t n) {
   return std::make_unique_for_overwrite<double[]>(n);
