@@ -8,8 +8,8 @@
 
 #include "proden/accumulator.hpp"
 #include "proden/error_estimate.hpp"
+#include "proden/metrics.hpp"
 #include "proden/progressive.hpp"
-#include "test_support.hpp"
 
 using namespace proden;
 
@@ -42,8 +42,6 @@ FrameEstimate accumulate(const Image& truth, int passes, float sigma, std::uint6
   }
   return acc.estimate({.halves = false, .features = false});
 }
-
-using test::mse;
 
 // z = x + a (y - x) with y = the truth (a perfect denoiser that ignores x: div = 0, so
 // SURE(y) = (y - x)^2 - Var[x]); a constant alpha.
@@ -90,7 +88,7 @@ Pass noisy_pass(const Image& truth, std::mt19937_64& rng, float sigma, double sp
 // the same terms from SURE fall below it; returns the SURE-only estimate.
 EstimatedError check_cross_validated(const PipelineResult& r, const Image& truth,
                                      const ErrorContext& ctx) {
-  const double truth_mse = mse(r.result, truth);
+  const double truth_mse = compute_metrics(r.result, truth).mse;
   const EstimatedError sure_only =
       estimate_error({&r.render, &r.variance, &r.result, &r.denoised, &r.alpha, &r.sure}, ctx);
   INFO("true " << truth_mse << " cross-validated " << r.estimated_error.mse << " SURE "
@@ -121,7 +119,7 @@ TEST_CASE("estimate_error: the plain render is worth its own spp", "[error_estim
   CHECK(e.mse_low < e.mse);
   CHECK(*e.mse_high > e.mse);
   // The true MSE of the render (sigma^2 / 8 passes) lies inside.
-  const double truth_mse = mse(f.mean, truth);
+  const double truth_mse = compute_metrics(f.mean, truth).mse;
   CHECK(e.mse_low <= truth_mse);
   CHECK(*e.mse_high >= truth_mse);
 }
@@ -134,7 +132,7 @@ TEST_CASE("estimate_error: unbiased against the truth, intervals cover it", "[er
     ErrorContext ctx{.spp = 24, .passes = 6, .noise_scope = NoiseScope::pixel};
     const EstimatedError e =
         estimate_error({&f.mean, &f.variance, &m.z, &m.y, &m.alpha, &m.sure}, ctx);
-    const double truth_mse = mse(m.z, truth);
+    const double truth_mse = compute_metrics(m.z, truth).mse;
     INFO("seed " << seed << " est " << e.mse << " true " << truth_mse);
     CHECK(e.source == "variance+sure");
     CHECK(e.mse == Approx(truth_mse).epsilon(0.1));

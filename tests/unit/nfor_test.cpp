@@ -11,6 +11,7 @@
 #include "../../pipeline/src/denoise/nfor_internal.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/denoise/nfor.hpp"
+#include "proden/metrics.hpp"
 #include "proden/progressive.hpp"
 #include "test_support.hpp"
 
@@ -296,8 +297,6 @@ TEST_CASE("NFOR denoises a noisy frame", "[nfor]") {
 
 namespace {
 
-using test::mse;
-
 // The frame's features replaced: fn(x, y, albedo[3], normal[3], depth) for both halves.
 template <class Fn>
 void set_features(Frame& f, Fn fn) {
@@ -369,7 +368,8 @@ TEST_CASE("rank-deficient windows: constant, collinear and degenerate features",
       require_finite(ex.cross_validation);
       require_finite(ex.hat);
       // Still a denoiser: the zeroth- (or lower-) order fit that remains averages noise away.
-      CHECK(mse(y, clean.colour) < 0.6 * mse(f.colour, clean.colour));
+      CHECK(compute_metrics(y, clean.colour).mse <
+            0.6 * compute_metrics(f.colour, clean.colour).mse);
     }
   }
 }
@@ -487,7 +487,7 @@ TEST_CASE("without feature halves (a v1 state) the features are used unfiltered"
   const Image y = NforDenoiser().run(f.inputs(), &ex);
   CHECK(ex.mode == "nfor");
   CHECK_FALSE(ex.prefiltered_features);
-  CHECK(mse(y, clean.colour) < 0.5 * mse(f.colour, clean.colour));
+  CHECK(compute_metrics(y, clean.colour).mse < 0.5 * compute_metrics(f.colour, clean.colour).mse);
 }
 
 TEST_CASE("NFOR in the tiled pipeline: every tile size gives the whole-frame result",

@@ -74,13 +74,4 @@ void truncate_copy(const std::string& from, const std::string& to, std::uintmax_
   out.write(data.data(), static_cast<std::streamsize>(data.size()));
 }
 
-double mse(const Image& image, const Image& truth) {
-  double s = 0;
-  for (std::size_t i = 0; i < image.data().size(); ++i) {
-    const double d = static_cast<double>(image.data()[i]) - truth.data()[i];
-    s += d * d;
-  }
-  return s / static_cast<double>(image.data().size());
-}
-
 }  // namespace proden::test

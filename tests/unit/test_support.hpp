@@ -31,9 +31,6 @@ Pass make_pass(int width, int height, double spp, std::uint64_t seed, Layout lay
 // Writes `pass` as a generic EXR (R,G,B, Albedo.*, Normal.*, Depth.Z, Variance.*).
 void write_generic_exr(const std::string& path, const Pass& pass, bool half = false);
 
-// Mean squared error over every value of `image` against `truth` (same shape).
-double mse(const Image& image, const Image& truth);
-
 // Copies the first `bytes` bytes of `from` to `to`.
 void truncate_copy(const std::string& from, const std::string& to, std::uintmax_t bytes);
 
