@@ -12,6 +12,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests", "servi
 os.environ.setdefault("PRODEN_SAMPLES_DIR", os.path.join(os.path.dirname(__file__), "..", "samples"))
 import harness  # noqa: E402
 import hostile_support as hf  # noqa: E402
+from daemon_bench import metric_sums  # noqa: E402
 from harness import Daemon, TempRoot  # noqa: E402
 
 
@@ -28,12 +29,8 @@ def one(binary, body, denoiser):
                 assert s == 202, r
             d.wait_passes(jid, 1, 2, timeout=600)
             wall = time.monotonic() - t0
-            _, _, m = d.request("GET", "/metrics")
-            stages = {}
-            for line in m.decode().splitlines():
-                if line.startswith("proden_stage_duration_seconds_sum"):
-                    name, v = line.rsplit(" ", 1)
-                    stages[name.split('"')[1]] = float(v)
+            stages = {name.split('"')[1]: v for name, v in metric_sums(d).items()
+                      if name.startswith("proden_stage_duration_seconds_sum")}
             state = 0
             for dirpath, _, files in os.walk(os.path.join(d.state, "jobs", jid)):
                 state += sum(os.path.getsize(os.path.join(dirpath, f)) for f in files)
