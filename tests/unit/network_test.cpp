@@ -238,22 +238,29 @@ TEST_CASE("the network mixer in tiles equals the whole image, bit for bit", "[ne
   const Rect image{0, 0, w, h};
   Buffer whole(image, 3);
   net->infer(in.x.view(), in.y.view(), in.var.view(), in.sure.view(), image, whole);
+  // 1-pixel tiles: the border rows and columns and a cross through the middle, where the clamped
+  // halo takes every shape (all 2745 of them took 42 s under ASan, the unit suite's longest).
+  const auto sampled = [&](int tx, int ty) {
+    return tx == 0 || ty == 0 || tx == w - 1 || ty == h - 1 || tx == w / 2 || ty == h / 2;
+  };
   for (int tile : {1, 7, 16, 33}) {
-    Buffer tiled(image, 3);
+    int compared = 0, differ = 0;
     for (int ty = 0; ty < h; ty += tile)
       for (int tx = 0; tx < w; tx += tile) {
+        if (tile == 1 && !sampled(tx, ty)) continue;
         const Rect out{tx, ty, std::min(tx + tile, w), std::min(ty + tile, h)};
         Buffer part(out, 3);
         mixer.mix(mi, out, part);
         for (int c = 0; c < 3; ++c)
           for (int y = out.y0; y < out.y1; ++y)
-            for (int x = out.x0; x < out.x1; ++x) tiled.at(x, y, c) = part.at(x, y, c);
+            for (int x = out.x0; x < out.x1; ++x) {
+              ++compared;
+              differ += part.at(x, y, c) != whole.at(x, y, c);
+            }
       }
-    int differ = 0;
-    for (int c = 0; c < 3; ++c)
-      for (int y = 0; y < h; ++y)
-        for (int x = 0; x < w; ++x) differ += tiled.at(x, y, c) != whole.at(x, y, c);
     INFO("tile " << tile);
+    // tile 1: the border's 2 (w + h) - 4 pixels and the cross's w + h - 1 less its 4 on the border
+    CHECK(compared == 3 * (tile == 1 ? 2 * (w + h) - 4 + (w + h - 1) - 4 : w * h));
     CHECK(differ == 0);
   }
 }
