@@ -15,8 +15,8 @@
 #   SKIP_RENDER=1    use the eval sets as they are
 #   SKIP_ACCURACY=1  keep bench/results/accuracy* (REUSE_ACCURACY=1: re-plot from the .jsonl)
 #   SKIP_PERF=1      keep bench/results/perf.* and micro.*   PERF_ARGS: extra bench_pipeline args
-#   SKIP_SAVINGS=1   keep bench/results/savings.md and levels_* (bench/savings.py --reuse
-#                    re-tabulates them)
+#   SKIP_SAVINGS=1   keep bench/results/savings.md, mixers_*.md and levels_* (bench/savings.py
+#                    and bench/mixers.py --reuse re-tabulate them)
 #   SKIP_NFOR=1      keep bench/results/nfor_* (NFOR's speed against NL-means and its evaluation
 #                    against the references, docs/nfor.md)
 set -euo pipefail
@@ -100,6 +100,11 @@ fi
 if [[ ${SKIP_SAVINGS:-0} != 1 ]]; then
   echo "== sample savings (render, NL-means, NFOR, proden on each, the cascade)"
   $PY bench/savings.py --bin "$BIN" --evaldata "$EVALDATA" --scenes "$(tr ' ' ',' <<<"$SCENES")"
+  echo "== both mixers on NFOR and on the cascade"
+  for d in nfor cascade; do
+    $PY bench/mixers.py --denoiser $d --bin "$BIN" --evaldata "$EVALDATA" \
+        --scenes "$(tr ' ' ',' <<<"$SCENES")" > /dev/null
+  done
 fi
 
 echo "== bench/RESULTS.md"
