@@ -96,6 +96,25 @@ def main():
     L.append("| **all** | gmean | **%s** | %s | |\n" % (
         fmt(gmean(sav["alone"])),
         " | ".join("**%s**" % fmt(gmean(sav[l])) for l in labels) + " |" * (len(others) - 1)))
+    # The bar: <= 1.02x min(render, the denoiser alone) in relMSE and SMAPE.
+    L.append("Against the bar (<= 1.02x min(render, %s alone) in relMSE and SMAPE), per mixer: "
+             "cells over 1.02 of %d, and the worst.\n" % (name, sum(
+                 len(set.intersection(*(set(data[sc][l]) for l in labels))) for sc in scenes)))
+    L.append("| mixer | relMSE > 1.02 | worst relMSE | SMAPE > 1.02 | worst SMAPE |")
+    L.append("|---|---:|---|---:|---|")
+    for l in labels:
+        worst = {}
+        for key in ("relmse", "smape"):
+            r = []
+            for sc in scenes:
+                for v, line in data[sc][l].items():
+                    best = min(line["render"][key], line["denoised"][key])
+                    r.append((line["result"][key] / best if best > 0 else float("inf"), sc, v))
+            worst[key] = (sum(x[0] > 1.02 for x in r), max(r))
+        L.append("| %s | %d | %s (%s %d) | %d | %s (%s %d) |" % (
+            l, worst["relmse"][0], fmt(worst["relmse"][1][0]), *worst["relmse"][1][1:],
+            worst["smape"][0], fmt(worst["smape"][1][0]), *worst["smape"][1][1:]))
+    L.append("")
     with open(a.out, "w") as f:
         f.write("\n".join(L) + "\n")
     print("\n".join(L))
