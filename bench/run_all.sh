@@ -103,7 +103,8 @@ if [[ ${SKIP_SAVINGS:-0} != 1 ]]; then
   echo "== both mixers on NFOR and on the cascade"
   for d in nfor cascade; do
     $PY bench/mixers.py --denoiser $d --bin "$BIN" --evaldata "$EVALDATA" \
-        --scenes "$(tr ' ' ',' <<<"$SCENES")" > /dev/null
+        --scenes "$(tr ' ' ',' <<<"$SCENES")" \
+        --weights nfor-w48=training/weights/pdnet_nfor_w48.pdnw > /dev/null
   done
 fi
 

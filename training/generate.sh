@@ -6,7 +6,8 @@
 #
 # Environment: VAL_COUNT (8), TRAIN_COUNT (64), TRAIN_START (0), DEADLINE_MIN (45: start no
 # new train frame after this many minutes; 0 = no limit), TRAINING_DATA (/work/trainingdata),
-# BLENDER, PRODEN (default build/proden, from `make build`).
+# BLENDER, PRODEN (default build/proden, from `make build`), DENOISER (the inputs' denoiser,
+# `proden denoise --denoiser`; default proden's).
 set -euo pipefail
 HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 VAL_COUNT=${VAL_COUNT:-8}

@@ -30,6 +30,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 SCENE = os.path.join(HERE, "scenes", "procedural.py")
 PRODEN = os.environ.get("PRODEN", os.path.join(REPO, "build", "proden"))  # `make build`
+# The denoiser whose output the inputs carry (`proden denoise --denoiser`); empty: proden's default.
+DENOISER = os.environ.get("DENOISER", "")
 BLENDER = os.environ.get("BLENDER", "blender")
 SLOTS = 8
 CHUNK_SPP = [1, 1, 2, 4, 8, 16]
@@ -123,6 +125,8 @@ def run_levels(fdir, log):
                 break
             time.sleep(10)
         cmd = [PRODEN, "denoise", "--aov", "-q", "--out", out] + level_files(fdir, lv)
+        if DENOISER:
+            cmd[2:2] = ["--denoiser", DENOISER]
         p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         if p.returncode != 0 or not nonempty(out):
             raise RuntimeError("proden failed (rc=%d) for level %d: %s" % (p.returncode, lv, p.stdout[-2000:]))

@@ -362,6 +362,10 @@ TEST_CASE("the network matches its PyTorch parity fixture", "[network][parity]")
     check_parity(*load(dir + "/training/weights/pdnet_w24.pdnw"),
                  dir + "/tests/data/pdnet_parity_w24.bin");
   }
+  SECTION("width 48 trained on NFOR's output (docs/mixer_network.md)") {
+    check_parity(*load(dir + "/training/weights/pdnet_nfor_w48.pdnw"),
+                 dir + "/tests/data/pdnet_parity_nfor_w48.bin");
+  }
   SECTION("untrained width 48 (alpha inside (0, 1): exercises the division)") {
     check_parity(*load(dir + "/training/weights/pdnet_w48_init.pdnw"),
                  dir + "/tests/data/pdnet_parity_init_w48.bin");
