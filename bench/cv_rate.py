@@ -21,19 +21,14 @@ import argparse
 import glob
 import json
 import os
-import subprocess
+import sys
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-import OpenImageIO as oiio
 
-
-def rgb(path, prefix):
-    b = oiio.ImageBuf(path)
-    names = list(b.spec().channelnames)
-    px = b.get_pixels(oiio.FLOAT)
-    return np.stack([px[:, :, names.index(prefix + c)] for c in "RGB"], -1).astype(np.float64)
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from calibration import denoise, read_rgb as rgb  # noqa: E402
 
 
 def main():
@@ -50,8 +45,7 @@ def main():
 
     def run(name, passes, denoiser):
         out = os.path.join(tmp, name + ".exr")
-        subprocess.run([a.proden, "denoise", "-q", "--aov", "--denoiser", denoiser, "--out", out,
-                        *passes], check=True, capture_output=True)
+        denoise(a.proden, passes, out, denoiser, False)
         return out
 
     cells = []

@@ -16,12 +16,11 @@ closed form's.
 import argparse
 import json
 import os
-import subprocess
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from savings import RES, equivalent_spp, fmt, gmean, render_curve  # noqa: E402
+from savings import RES, equivalent_spp, fmt, gmean, render_curve, run_levels  # noqa: E402
 
 SCENES = ["cornell", "textured_dof", "glass", "interior"]
 
@@ -48,12 +47,11 @@ def main():
         for label, args in runs.items():
             path = os.path.join(RES, "levels_%s_mixer_%s_%s.jsonl" % (a.denoiser, label, scene))
             if not (a.reuse and os.path.exists(path)):
-                out = subprocess.run(
-                    [os.path.join(a.bin, "proden_eval_levels"), "--scene",
-                     os.path.join(a.evaldata, scene), "--denoiser", a.denoiser, "--json", "--threads",
-                     str(a.threads), *args], check=True, capture_output=True, text=True).stdout
+                lines = run_levels(os.path.join(a.bin, "proden_eval_levels"),
+                                   os.path.join(a.evaldata, scene),
+                                   ["--denoiser", a.denoiser, *args], a.threads)
                 with open(path, "w") as f:
-                    f.write(out)
+                    f.write("".join(json.dumps(l) + "\n" for l in lines))
             with open(path) as f:
                 data.setdefault(scene, {})[label] = {
                     round(r["spp"]): r for r in map(json.loads, f) if r}
