@@ -33,6 +33,9 @@ PRODEN = os.environ.get("PRODEN", os.path.join(REPO, "build", "proden"))  # `mak
 # The denoiser whose output the inputs carry (`proden denoise --denoiser`); empty: proden's default.
 DENOISER = os.environ.get("DENOISER", "")
 BLENDER = os.environ.get("BLENDER", "blender")
+# Share of the frames closed into a room lit only indirectly (procedural.py --room-prob; 0 = the
+# open scenes of the first data sets, unchanged).
+ROOM_PROB = os.environ.get("ROOM_PROB", "0")
 SLOTS = 8
 CHUNK_SPP = [1, 1, 2, 4, 8, 16]
 REF_SPP = int(os.environ.get("REF_SPP", "1024"))
@@ -94,7 +97,7 @@ def render_missing(fdir, scene_seed, res, log):
     if not chunks:
         return 0.0, 0.0, 0, desc
     cmd = [BLENDER, "-b", "--factory-startup", "-noaudio", "-P", SCENE, "--",
-           "--scene-seed", str(scene_seed), "--res", str(res)]
+           "--scene-seed", str(scene_seed), "--res", str(res), "--room-prob", ROOM_PROB]
     for c in chunks:
         cmd += ["--chunk", c]
     t0 = time.time()

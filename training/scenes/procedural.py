@@ -13,7 +13,8 @@ are off. Scene variety: random primitives on a floor (+ walls), materials from B
 bundled material library and generated Principled BSDFs (glass, metal, finely textured
 diffuse), a random bundled HDRI world (random strength/rotation, sometimes dim), random
 area/point/sun/spot lights, sometimes a small bright light behind glass with caustics on
-(fireflies), random camera, depth of field in ~1/3 of the scenes, random exposure.
+(fireflies), random camera, depth of field in ~1/3 of the scenes, random exposure; with
+--room-prob P, a share P of the seeds is closed into a room lit only indirectly (build_room).
 """
 
 import argparse
@@ -46,6 +47,9 @@ def parse_args():
     p.add_argument("--threads", type=int, default=0)
     p.add_argument("--chunk", action="append", default=[], help="SEED:SPP:OUT.exr")
     p.add_argument("--describe", action="store_true", help="print the scene description")
+    p.add_argument("--room-prob", type=float, default=0.0,
+                   help="probability of a closed room lit only indirectly (own RNG stream, so "
+                        "0 leaves every seed's scene as before)")
     a = p.parse_args(argv)
     chunks = []
     for c in a.chunk:
@@ -162,16 +166,18 @@ def pick_opaque(rng, libmats, i):
     return common.principled("plain%d" % i, rand_color(rng), roughness=1.0), "plain"
 
 
-def auto_exposure(scene, rng, probe_path, desc):
+def auto_exposure(scene, rng, probe_path, desc, probe_spp=16):
     """Set Cycles film exposure so the median luminance is 0.18 * 2^U(-2.5, 1.5).
 
-    A 32x32, 16 spp probe render (fixed seed) measures the scene; film_exposure scales the
-    Combined pass in the EXR (unlike the view transform's exposure)."""
+    A 32x32, `probe_spp` probe render (fixed seed) measures the scene; film_exposure scales the
+    Combined pass in the EXR (unlike the view transform's exposure). A room lit only indirectly
+    needs more probe samples: at 16 spp most of its pixels are still near zero, the median reads
+    low and the frame came out 5-10x brighter than the target."""
     import numpy as np
     target = 0.18 * 2.0 ** rng.uniform(-2.5, 1.5)
     cy = scene.cycles
     r = scene.render
-    cy.seed, cy.samples = 4242, 16
+    cy.seed, cy.samples = 4242, probe_spp
     r.resolution_percentage = 25
     r.filepath = probe_path
     r.image_settings.file_format = "OPEN_EXR"   # single layer: loadable with pixels
@@ -260,9 +266,42 @@ def build_walls(rng, libmats, cam_az, desc):
         d = rng.uniform(3.0, 5.0)
         bpy.ops.mesh.primitive_plane_add(size=30, location=(d * math.cos(ang), d * math.sin(ang), 0))
         wall = bpy.context.active_object
+        wall.name = "openwall%d" % w
         wall.rotation_euler = (math.pi / 2, 0, ang + math.pi / 2)
         wall.data.materials.append(wm)
     desc["walls"] = nwalls
+
+
+def build_room(scene, rng, libmats, cam_loc, expo, desc):
+    """Close the scene into a room lit only indirectly, like a real interior lit through a
+    cove: ceiling and four walls around the camera and the objects, and 1-3 area lights
+    under the ceiling facing up, hidden from the camera, so every visible surface is lit by
+    bounces (the low-light, high-variance regime of an interior at 1 spp per pass)."""
+    half = max(abs(cam_loc[0]), abs(cam_loc[1]), 3.0) + rng.uniform(1.0, 3.0)
+    height = max(cam_loc[2] + rng.uniform(0.8, 2.5), 3.0)
+    wall_mat, wk = pick_opaque(rng, libmats, 300) if rng.random() < 0.4 else (
+        common.principled("roomwall", rand_color(rng, 0.3, 0.9), roughness=1.0), "plain")
+    ceil_mat = common.principled("ceiling", rand_color(rng, 0.6, 0.95), roughness=1.0)
+    bpy.ops.mesh.primitive_plane_add(size=2 * half, location=(0, 0, height))
+    bpy.context.active_object.data.materials.append(ceil_mat)
+    for k in range(4):
+        ang = k * math.pi / 2
+        bpy.ops.mesh.primitive_plane_add(size=2 * max(half, height),
+                                         location=(half * math.cos(ang), half * math.sin(ang), 0))
+        wall = bpy.context.active_object
+        wall.rotation_euler = (math.pi / 2, 0, ang + math.pi / 2)
+        wall.data.materials.append(wall_mat)
+    lights = []
+    for i in range(rng.randint(1, 3)):
+        a = rng.uniform(0, 2 * math.pi)
+        r = rng.uniform(0.5, 0.9) * half
+        loc = (r * math.cos(a), r * math.sin(a), height - rng.uniform(0.15, 0.6))
+        power, size = rng.uniform(300, 3000), rng.uniform(0.3, 1.5)
+        ob = add_light(scene, rng, "AREA", loc, power * expo, size,
+                       (loc[0], loc[1], height + 1.0), "cove%d" % i)
+        ob.visible_camera = False
+        lights.append(["AREA_UP", round(power, 1), round(size, 2)])
+    desc["room"] = {"half": round(half, 2), "height": round(height, 2), "wall": wk, "lights": lights}
 
 
 # ---------------------------------------------------------------- lighting / camera
@@ -386,6 +425,16 @@ def main():
     desc["exposure"] = round(expo, 3)
     build_world(scene, rng, expo, desc)
     caustics = build_lights(scene, rng, objs, cam_loc, expo, desc)
+    room_rng = random.Random(args.scene_seed * 7919 + 17)   # its own stream: see --room-prob
+    if room_rng.random() < args.room_prob:
+        # The room replaces the open scene's lights and walls (a wall could hide every cove
+        # light from the camera's side): only the hidden lights light it.
+        for ob in [o for o in bpy.data.objects
+                   if o.type == "LIGHT" or o.name.startswith("openwall")]:
+            bpy.data.objects.remove(ob, do_unlink=True)
+        scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+        build_room(scene, room_rng, libmats, cam_loc, expo, desc)
+        caustics = False
 
     cfg = types.SimpleNamespace(seed=1, spp=1, res=args.res, out="x.exr", half=False,
                                 threads=args.threads)
@@ -402,7 +451,8 @@ def main():
     cy.sample_clamp_indirect = 0.0
     desc["caustics"] = caustics
     if args.chunks:
-        auto_exposure(scene, rng, os.path.abspath(args.chunks[0][2]) + ".probe.exr", desc)
+        auto_exposure(scene, rng, os.path.abspath(args.chunks[0][2]) + ".probe.exr", desc,
+                      probe_spp=256 if "room" in desc else 16)
     print("PRODEN_SCENE %r" % (desc,), flush=True)
 
     # Keep the synchronised scene between chunks: only the seed and sample count change, and
