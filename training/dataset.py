@@ -55,6 +55,18 @@ def load_split(root, split, limit=None):
     return frames
 
 
+def ref_noise_share(f, level, ref_spp=1024):
+    """The reference's own noise as a share of the denoised image's measured error at one level,
+    both in relMSE weights: the reference is a render of ref_spp samples, so its variance is the
+    level's Var[x] times spp / ref_spp. Near 1, the training target is mostly the reference's
+    noise (dark rooms lit only indirectly, whose 1024-spp reference is still grainy)."""
+    ref = f["ref"].astype(np.float64)
+    w = 1.0 / (ref * ref + 0.01)
+    ref_var = f["var"][level].astype(np.float64) * (float(f["spp"][level]) / ref_spp)
+    err = (f["y"][level].astype(np.float64) - ref) ** 2
+    return float(np.mean(ref_var * w) / max(np.mean(err * w), 1e-30))
+
+
 class MixerDataset:
     """Random (frame, level) samples with crops and the design's augmentations.
 
@@ -62,13 +74,16 @@ class MixerDataset:
     inputs and the reference, and with probability 0.5 a swap x<->y together with var<->sure.
     """
 
-    def __init__(self, frames, crop=128, augment=True, swap_prob=0.5):
+    def __init__(self, frames, crop=128, augment=True, swap_prob=0.5, max_ref_noise=0.0, ref_spp=1024):
         assert frames, "no frames"
         self.frames = frames
         self.crop = crop
         self.augment = augment
         self.swap_prob = swap_prob
-        self.pairs = [(i, l) for i, f in enumerate(frames) for l in range(f["x"].shape[0])]
+        self.pairs = [(i, l) for i, f in enumerate(frames) for l in range(f["x"].shape[0])
+                      if not max_ref_noise or ref_noise_share(f, l, ref_spp) <= max_ref_noise]
+        self.dropped = sum(f["x"].shape[0] for f in frames) - len(self.pairs)
+        assert self.pairs, "every frame-level dropped by max_ref_noise"
 
     def sample(self, rng):
         fi, li = self.pairs[rng.integers(len(self.pairs))]

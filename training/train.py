@@ -56,6 +56,11 @@ def main(argv=None):
     ap.add_argument("--time-limit", type=float, default=0,
                     help="stop after this many seconds of training (the schedule is cut short)")
     ap.add_argument("--no-val", action="store_true")
+    ap.add_argument("--max-ref-noise", type=float, default=0.0,
+                    help="drop training frame-levels whose reference noise is more than this share of "
+                         "the denoised image's measured error (dataset.ref_noise_share; 0 = keep all)")
+    ap.add_argument("--ref-spp", type=int, default=int(os.environ.get("REF_SPP", "1024")),
+                    help="the references' spp, for --max-ref-noise (render_set.py's REF_SPP)")
     args = ap.parse_args(argv)
 
     torch.set_num_threads(args.threads)
@@ -73,13 +78,14 @@ def main(argv=None):
     if not train_frames:
         print(f"no training frames under {root}", file=sys.stderr)
         return 1
-    data = ds.MixerDataset(train_frames, crop=args.crop)
+    data = ds.MixerDataset(train_frames, crop=args.crop, max_ref_noise=args.max_ref_noise,
+                           ref_spp=args.ref_spp)
     steps = args.steps or max(1, int(round(args.epochs * len(data.pairs) / args.batch)))
     if args.budget:
         steps = 10 ** 9  # decided after the calibration steps
     levels = sorted({int(s) for f in train_frames for s in f["spp"]})
     print(f"data {root}: {len(train_frames)} train frames ({len(data.pairs)} frame-levels, spp {levels}), "
-          f"{len(val_frames)} val frames; loaded in {time.time() - t0:.1f}s; {steps} steps", flush=True)
+          f"{data.dropped} frame-levels dropped by --max-ref-noise, {len(val_frames)} val frames; loaded in {time.time() - t0:.1f}s; {steps} steps", flush=True)
 
     net = PDNet(args.width)
     opt = torch.optim.Adam(net.parameters(), lr=args.max_lr / 25.0)  # OneCycle's initial LR
@@ -159,6 +165,7 @@ def main(argv=None):
                "steps": step, "planned_steps": steps, "stopped_early": stopped_early,
                "wall_seconds": round(train_seconds, 1), "steps_per_s": step / train_seconds,
                "dataset": {"root": root, "train_frames": len(train_frames), "val_frames": len(val_frames),
+                           "frame_levels": len(data.pairs), "dropped_frame_levels": data.dropped,
                            "spp_levels": levels},
                "loss_curve": curve, "final_train_loss": curve[-1][1] if curve else None}
     if val_frames:
