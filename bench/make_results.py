@@ -243,7 +243,7 @@ def main():
     fast = read("nlmeans_fast.md")  # issue 12's NL-means kernel work, measured by hand
     if fast:
         L.append(fast)
-    for part in ("nfor.md", "savings.md", "mixers_nfor.md", "mixers_cascade.md", "accumulation.md",
+    for part in ("nfor.md", "savings.md", "mixers_nfor.md", "mixers_nfor_rooms.md", "mixers_cascade.md", "accumulation.md",
                  "daemon.md", "dashboard.md", "hostile.md", "soak.md", "farm.md", "fuzz.md",
                  "ci.md"):
         t = read(part)

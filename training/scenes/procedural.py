@@ -23,7 +23,6 @@ import math
 import os
 import random
 import sys
-import time
 import types
 
 HERE = os.path.dirname(os.path.abspath(__file__))
