@@ -29,6 +29,24 @@ def smape_loss(z, r):
     return (torch.abs(z - r) / (torch.abs(z) + torch.abs(r) + 1e-2)).mean()
 
 
+def relmse_loss(z, r, y, cap=100.0):
+    """relMSE with the denoised input y standing in for the reference in the weight,
+    (z - r)^2 / (y^2 + 0.01), softly capped per element (cap * log1p(e / cap): a firefly keeps a
+    bounded, non-zero gradient). The weight does not hold the reference, so the reference's own
+    noise, independent of the inputs, only adds a constant to the expected loss (Noise2Noise);
+    SMAPE's denominator holds the reference, and a grainy reference flattens it."""
+    e = (z - r) ** 2 / (y * y + 1e-2)
+    return (cap * torch.log1p(e / cap)).mean()
+
+
+def training_loss(kind, z, r, y):
+    if kind == "smape":
+        return smape_loss(z, r)
+    if kind == "relmse":
+        return relmse_loss(z, r, y)
+    return smape_loss(z, r) + relmse_loss(z, r, y)  # "smape+relmse"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--width", type=int, default=48)
@@ -59,6 +77,8 @@ def main(argv=None):
     ap.add_argument("--max-ref-noise", type=float, default=0.0,
                     help="drop training frame-levels whose reference noise is more than this share of "
                          "the denoised image's measured error (dataset.ref_noise_share; 0 = keep all)")
+    ap.add_argument("--loss", default="smape", choices=["smape", "relmse", "smape+relmse"],
+                    help="training loss (relmse: train.relmse_loss, robust to a grainy reference)")
     ap.add_argument("--ref-spp", type=int, default=int(os.environ.get("REF_SPP", "1024")),
                     help="the references' spp, for --max-ref-noise (render_set.py's REF_SPP)")
     args = ap.parse_args(argv)
@@ -125,7 +145,7 @@ def main(argv=None):
         step += 1
         x, y, var, sure, ref = data.batch(rng, args.batch)
         _, alpha = net(make_inputs(x, y, var, sure))
-        loss = smape_loss(mix(x, y, alpha), ref)
+        loss = training_loss(args.loss, mix(x, y, alpha), ref, y)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         gnorm = float(torch.nn.utils.clip_grad_norm_(net.parameters(), args.clip if args.clip > 0 else 1e30))

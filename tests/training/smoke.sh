@@ -33,7 +33,8 @@ grep -q "'room'" "$tmp/data/train/scene01000/times.json" || { echo "smoke: train
 if grep -q "'room'" "$tmp/data/val/scene09000/times.json"; then echo "smoke: val frame is a room" >&2; exit 1; fi
 
 # --max-ref-noise drops exactly the frame-levels whose reference noise share is above it: a
-# threshold between the frame's smallest and largest share keeps some and drops some.
+# threshold between the frame's smallest and largest share keeps some and drops some. (This run
+# also trains with the relMSE loss term.)
 thr=$(cd "$HERE/training" && $PY -c "
 import dataset as ds, numpy as np
 f = ds.load_frame('$tmp/data/train/scene01000/frame.npz')
@@ -41,7 +42,7 @@ s = sorted(ds.ref_noise_share(f, l, 8) for l in range(7))
 assert s[0] < s[-1], s
 print((s[0] + s[-1]) / 2)")
 $PY "$HERE/training/train.py" --width 8 --steps 2 --batch 2 --crop 16 --out "$tmp/run_ref" \
-    --data "$tmp/data" --threads 2 --no-val --max-ref-noise "$thr" --ref-spp 8
+    --data "$tmp/data" --threads 2 --no-val --max-ref-noise "$thr" --ref-spp 8 --loss smape+relmse
 (cd "$HERE/training" && $PY - "$tmp" "$thr" <<'PYEOF'
 import json, sys
 import dataset as ds
