@@ -78,7 +78,8 @@ def main(argv=None):
                     help="drop training frame-levels whose reference noise is more than this share of "
                          "the denoised image's measured error (dataset.ref_noise_share; 0 = keep all)")
     ap.add_argument("--loss", default="smape", choices=["smape", "relmse", "smape+relmse"],
-                    help="training loss (relmse: train.relmse_loss, robust to a grainy reference)")
+                    help="training loss (relmse: train.relmse_loss, weighted by the denoised input instead "
+                         "of the reference; measured worse than smape on cornell: docs/mixer_network.md)")
     ap.add_argument("--ref-spp", type=int, default=int(os.environ.get("REF_SPP", "1024")),
                     help="the references' spp, for --max-ref-noise (render_set.py's REF_SPP)")
     args = ap.parse_args(argv)
