@@ -11,6 +11,7 @@ edit them there, not in RESULTS.md); nfor.md is written by bench/nfor_results.py
 import json
 import math
 import os
+import re
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -22,9 +23,24 @@ def load_json(name):
     return json.load(open(p)) if os.path.exists(p) else None
 
 
+INCLUDE = re.compile(r"^<!-- include: ([\w.-]+) -->$", re.M)
+
+
 def read(name):
+    """A part of bench/results/, with each `<!-- include: X -->` line replaced by part X, so a
+    hand-written part shows a tool's output without a copy that can go stale."""
     p = os.path.join(RES, name)
-    return open(p).read().rstrip() + "\n" if os.path.exists(p) else None
+    if not os.path.exists(p):
+        return None
+    text = open(p).read().rstrip() + "\n"
+
+    def part(m):
+        inc = read(m.group(1))
+        if inc is None:
+            sys.exit(f"{name}: included part {m.group(1)} is missing from {RES}")
+        return inc.rstrip()
+
+    return INCLUDE.sub(part, text)
 
 
 def f(v, d=2):
