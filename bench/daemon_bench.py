@@ -408,7 +408,8 @@ def main():
     ap.add_argument("--seconds", type=int, default=120, help="placement time per rate")
     ap.add_argument("--drain", type=int, default=300, help="wait for the last version (s)")
     ap.add_argument("--resident", type=int,
-                    help="the daemon's max_resident_frames (default: the shipped one, 2)")
+                    help="the daemon's max_resident_frames (default: the shipped one, 64, with the shipped "
+                         "memory budget, max_resident_bytes 0)")
     ap.add_argument("--compression", help="the jobs' output.compression (default: the daemon's)")
     ap.add_argument("--lag-src", help="keep the generated passes here (reused if present)")
     ap.add_argument("--json")

@@ -91,6 +91,14 @@ std::vector<std::pair<std::string, AovMode>> AovAccumulator::channels() const {
   return out;
 }
 
+std::size_t AovAccumulator::state_bytes() const {
+  std::size_t b = 0;
+  for (const auto& c : channels_) {
+    b += (c.mean.size() + c.weight.size()) * sizeof(double) + c.first.size() * sizeof(float);
+  }
+  return b;
+}
+
 std::vector<AovChannel> AovAccumulator::result() const {
   std::vector<AovChannel> out;
   for (const auto& c : channels_) {

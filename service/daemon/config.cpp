@@ -49,6 +49,7 @@ void each_number(C& c, F&& f) {
   f("worker_threads", c.worker_threads, 1.0, 256.0);
   f("io_threads", c.io_threads, 1.0, 256.0);
   f("max_resident_frames", c.max_resident_frames, 0.0, 4096.0);
+  f("max_resident_bytes", c.max_resident_bytes, 0.0, 70368744177664.0);
   f("pipeline_threads", c.pipeline_threads, 0.0, 1024.0);
   f("limits.max_body_bytes", c.limits.max_body_bytes, 1.0, 1073741824.0);
   f("limits.max_upload_bytes", c.limits.max_upload_bytes, 1.0, 68719476736.0);
@@ -99,12 +100,12 @@ const json* find(const json& j, const std::string& key) {
 }  // namespace
 
 void apply_json(Config& c, const json& j) {
-  check_keys(
-      j,
-      {"bind", "port", "state_dir", "allowed_roots", "token_file", "open_reads", "dashboard",
-       "worker_threads", "io_threads", "max_resident_frames", "pipeline_threads", "log_level",
-       "limits", "watch", /* hostile input (issue 11): */ "input", "handler_threads"},
-      "");
+  check_keys(j,
+             {"bind", "port", "state_dir", "allowed_roots", "token_file", "open_reads", "dashboard",
+              "worker_threads", "io_threads", "max_resident_frames", "max_resident_bytes",
+              "pipeline_threads", "log_level", "limits", "watch",
+              /* hostile input (issue 11): */ "input", "handler_threads"},
+             "");
   take(j, "bind", c.bind, "");
   take(j, "state_dir", c.state_dir, "");
   take(j, "allowed_roots", c.allowed_roots, "");
@@ -198,6 +199,7 @@ json to_json(const Config& c) {
           {"worker_threads", c.worker_threads},
           {"io_threads", c.io_threads},
           {"max_resident_frames", c.max_resident_frames},
+          {"max_resident_bytes", c.max_resident_bytes},
           {"pipeline_threads", c.pipeline_threads},
           {"log_level", c.log_level},
           {"limits",

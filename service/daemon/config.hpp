@@ -59,11 +59,14 @@ struct Config {
   // With a token file, reads (GET /api/v1/..., /metrics) need the token too unless this is set;
   // /livez, /readyz and the dashboard's static files are always open.
   bool open_reads = false;
-  bool dashboard = true;        // serve the dashboard from / (docs/dashboard.md)
-  int worker_threads = 2;       // frames processed concurrently
-  int io_threads = 2;           // HTTP threads
-  int max_resident_frames = 2;  // accumulators cached in memory (others reload from state)
-  int pipeline_threads = 0;     // threads of one frame's pipeline (TBB); 0 = one per core
+  bool dashboard = true;   // serve the dashboard from / (docs/dashboard.md)
+  int worker_threads = 2;  // frames processed concurrently
+  int io_threads = 2;      // HTTP threads
+  // Frames whose accumulated state stays in memory between updates (the least recently updated
+  // beyond either bound are dropped and reload from their state file at their next update).
+  int max_resident_frames = 64;
+  std::uint64_t max_resident_bytes = 0;  // 0 = a quarter of usable_memory_bytes()
+  int pipeline_threads = 0;              // threads of one frame's pipeline (TBB); 0 = one per core
   std::string log_level = "info";
   Limits limits;
   WatchConfig watch;

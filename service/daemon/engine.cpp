@@ -90,6 +90,10 @@ Engine::~Engine() {
 
 void Engine::start() {
   validate(config_);
+  resident_budget_ =
+      config_.max_resident_bytes > 0 ? config_.max_resident_bytes : usable_memory_bytes() / 4;
+  if (resident_budget_ == 0) resident_budget_ = std::uint64_t{1} << 30;  // nothing readable
+  metrics_.set("proden_resident_budget_bytes", static_cast<double>(resident_budget_));
   if (config_.pipeline_threads > 0) {
     pipeline_threads_ =
         std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
@@ -196,21 +200,38 @@ void Engine::enqueue(const Job& job, long frame_no) {
   scheduler_->enqueue(job.spec.id, frame_no);
 }
 
+// Drops the least recently updated resident states until at most max_resident_frames remain and
+// they hold at most the memory budget; a dropped frame reloads its state file at its next update.
 void Engine::evict() {
-  std::vector<std::pair<std::uint64_t, Frame*>> resident;
+  struct Resident {
+    std::uint64_t last_used;
+    std::size_t bytes;
+    Frame* frame;
+  };
+  std::vector<Resident> resident;
+  std::uint64_t bytes = 0;
   for (auto& [id, j] : jobs_) {
     for (auto& [no, fr] : j->frames) {
-      if (fr.acc) resident.emplace_back(fr.last_used, &fr);  // a running frame's is lent out
+      if (!fr.acc) continue;  // not resident, or running (its state is lent out)
+      const std::size_t b = fr.acc->state_bytes() + (fr.aovs ? fr.aovs->state_bytes() : 0);
+      resident.push_back({fr.last_used, b, &fr});
+      bytes += b;
     }
   }
   const std::size_t limit = static_cast<std::size_t>(std::max(0, config_.max_resident_frames));
-  if (resident.size() <= limit) return;
   std::sort(resident.begin(), resident.end(),
-            [](const auto& a, const auto& b) { return a.first < b.first; });
-  for (std::size_t i = 0; i + limit < resident.size(); ++i) {
-    resident[i].second->acc.reset();
-    resident[i].second->aovs.reset();
+            [](const auto& a, const auto& b) { return a.last_used < b.last_used; });
+  std::size_t kept = resident.size();
+  for (const auto& r : resident) {
+    if (kept <= limit && bytes <= resident_budget_) break;
+    r.frame->acc.reset();
+    r.frame->aovs.reset();
+    bytes -= r.bytes;
+    --kept;
+    metrics_.inc("proden_evictions_total");
   }
+  metrics_.set("proden_resident_frames", static_cast<double>(kept));
+  metrics_.set("proden_resident_bytes", static_cast<double>(bytes));
 }
 
 bool Engine::wait_idle(int timeout_ms) {

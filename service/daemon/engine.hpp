@@ -169,6 +169,7 @@ class Engine {
   mutable std::mutex mu_;
   std::map<std::string, std::shared_ptr<Job>> jobs_;
   std::uint64_t use_clock_ = 0;
+  std::uint64_t resident_budget_ = 0;  // config_.max_resident_bytes, or its default (start())
   std::atomic<bool> ready_{false};
 };
 

@@ -15,6 +15,10 @@ namespace proden::daemon {
 // scanline reads free buffers of about 20 MB per pass), and trims whenever the top allows.
 void configure_allocator(std::size_t mmap_threshold, std::size_t trim_threshold, int arenas);
 
+// The memory this process may use: physical memory, or the cgroup's limit (v2 memory.max, v1
+// memory.limit_in_bytes) when that is lower (a container's). 0 when neither can be read.
+std::size_t usable_memory_bytes();
+
 // Returns free heap pages to the system (malloc_trim): the bytes of resident memory released,
 // as measured from /proc/self/statm (0 where that is not available). No-op without glibc.
 std::size_t release_free_memory();

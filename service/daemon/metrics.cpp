@@ -27,6 +27,14 @@ Metrics::Metrics()
       "proden_worker_busy_seconds_total", "counter",
       "Seconds workers spent processing frames (its rate / proden_worker_threads = utilisation)");
   declare("proden_jobs", "gauge", "Jobs known to the daemon");
+  declare("proden_resident_frames", "gauge",
+          "Frames whose accumulated state is kept in memory between updates");
+  declare("proden_resident_bytes", "gauge", "Bytes of the frames' states kept in memory");
+  declare("proden_resident_budget_bytes", "gauge",
+          "Memory for resident states (max_resident_bytes, or a quarter of usable memory)");
+  declare("proden_evictions_total", "counter",
+          "Resident states dropped for max_resident_frames or max_resident_bytes (reloaded from "
+          "their state file at their frame's next update)");
   declare("proden_sse_clients", "gauge", "Connected Server-Sent Events clients");
   declare("proden_http_connections", "gauge", "Open HTTP connections");
 }

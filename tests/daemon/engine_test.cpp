@@ -4,6 +4,7 @@
 #include <fstream>
 
 #include "daemon/engine.hpp"
+#include "daemon/memory.hpp"
 #include "daemon_support.hpp"
 
 namespace fs = std::filesystem;
@@ -76,4 +77,63 @@ TEST_CASE("Engine: watched files are ingested once", "[daemon][engine]") {
   CHECK(rig.engine->frame(job.id, 2).passes == 2);
   std::this_thread::sleep_for(std::chrono::milliseconds(400));  // more scans: nothing new
   CHECK(rig.engine->frame(job.id, 2).passes == 2);
+}
+
+TEST_CASE("Engine: resident states are bounded by count and by bytes, least recently updated first",
+          "[daemon][engine]") {
+  EngineRig rig;
+  const auto job = rig.create("resident");
+  const auto update = [&](long frame, std::uint64_t seed) {
+    rig.engine->upload(job.id, std::to_string(frame), "p" + std::to_string(seed),
+                       rig.pass_bytes(seed));
+    REQUIRE(rig.engine->wait_idle(20000));
+  };
+  const auto loads = [&] {
+    return rig.metric("proden_stage_duration_seconds_count{stage=\"load\"}");
+  };
+  // The default budget holds three small frames: every state stays.
+  for (long f = 1; f <= 3; ++f) update(f, static_cast<std::uint64_t>(f));
+  CHECK(rig.metric("proden_resident_frames") == 3);
+  CHECK(rig.metric("proden_resident_budget_bytes") ==
+        static_cast<double>(usable_memory_bytes() / 4));  // max_resident_bytes 0: the default
+  const double three = rig.metric("proden_resident_bytes");
+  REQUIRE(three > 0);
+  const auto one = static_cast<std::uint64_t>(three / 3);
+
+  SECTION("a byte budget of two and a half frames keeps the two last updated") {
+    rig.config.max_resident_bytes = 2 * one + one / 2;
+    rig.restart();  // nothing resident: each frame's next update reloads its state
+    const double before = loads();
+    const double evicted = rig.metric("proden_evictions_total");
+    for (long f = 1; f <= 3; ++f) update(f, static_cast<std::uint64_t>(10 + f));
+    CHECK(loads() == before + 3);
+    CHECK(rig.metric("proden_resident_frames") == 2);  // 2 and 3; 1 was dropped
+    CHECK(rig.metric("proden_resident_bytes") == static_cast<double>(2 * one));
+    CHECK(rig.metric("proden_evictions_total") == evicted + 1);
+    update(3, 20);  // resident: no reload
+    CHECK(loads() == before + 3);
+    const auto digest = rig.engine->frame(job.id, 1).state_digest;
+    update(1, 21);  // dropped: reloaded from its state file, then 2 is dropped
+    CHECK(loads() == before + 4);
+    CHECK(rig.metric("proden_evictions_total") == evicted + 2);
+    const auto f = rig.engine->frame(job.id, 1);
+    CHECK(f.passes == 3);
+    CHECK(f.state_digest != digest);
+    update(2, 22);
+    CHECK(loads() == before + 5);
+    CHECK(rig.engine->frame(job.id, 2).passes == 3);
+  }
+  SECTION("max_resident_frames 1 keeps only the last updated") {
+    rig.config.max_resident_frames = 1;
+    rig.restart();
+    const double before = loads();
+    update(1, 11);
+    update(2, 12);
+    CHECK(rig.metric("proden_resident_frames") == 1);
+    CHECK(rig.metric("proden_resident_bytes") == static_cast<double>(one));
+    update(2, 13);
+    CHECK(loads() == before + 2);
+    update(1, 14);
+    CHECK(loads() == before + 3);
+  }
 }

@@ -47,6 +47,8 @@ class AovAccumulator {
   // The accumulated planes (means as float; pixels no finite sample reached are 0), in name order.
   std::vector<AovChannel> result() const;
   const std::vector<std::pair<std::string, std::string>>& attributes() const { return attributes_; }
+  // Bytes of accumulated planes (what keeping it in memory costs).
+  std::size_t state_bytes() const;
 
   // Binary form for the daemon's frame state ("PRDNAOV" + version, checksummed); deserialize()
   // throws InputError (unreadable) on a corrupt blob. An empty accumulator serialises to nothing.
