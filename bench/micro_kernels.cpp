@@ -256,6 +256,32 @@ void BM_TRescale(benchmark::State& state) {
 }
 BENCHMARK(BM_TRescale)->Args({0, 0})->Args({0, 1})->Args({1, 1});
 
+// The pipeline's case of BM_TRescale (11x11, 8 passes pooled) with each kernel build this CPU
+// runs (arg: index in t_test_builds(), best last).
+void BM_TRescaleIsa(benchmark::State& state) {
+  const std::vector<std::string> isas = t_test_builds();
+  const auto which = static_cast<std::size_t>(state.range(0));
+  if (which >= isas.size()) {
+    state.SkipWithError("build not available on this CPU");
+    return;
+  }
+  const Frame& f = frame();
+  TTestParams p;
+  p.isa = isas[which];
+  static const Image passes(kW, kW, 1, 8.0f);
+  static const Image pooled = pool_variance(f.var, 2);
+  const VarianceOrigin origin{view_of(passes), false, 2, view_of(f.var)};
+  Buffer out(kOut, 3);
+  for (auto _ : state) {
+    t_rescale(view_of(f.x), view_of(pooled), view_of(f.y), view_of(f.alpha), kW, kW, kOut, p, out,
+              origin);
+    benchmark::DoNotOptimize(out.at(kOut.x0, kOut.y0, 0));
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(kOut.area()));
+  state.SetLabel(p.isa + ", 11x11, 8 passes pooled");
+}
+BENCHMARK(BM_TRescaleIsa)->Arg(0)->Arg(1)->Arg(2);
+
 void BM_AccumulatorAdd(benchmark::State& state) {
   const int n = static_cast<int>(state.range(0));
   const bool features = state.range(1) != 0;

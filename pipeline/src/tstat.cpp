@@ -15,14 +15,12 @@
 #include <string>
 #include <utility>
 
-#include "simd.hpp"
-
 namespace proden {
 namespace {
 
 constexpr double kSqrt2Pi = 2.5066282746310002;
 constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr int kLanes = 8;  // output pixels per kernel call: one AVX-512 register of doubles
+constexpr int kMaxLanes = 8;  // output pixels per kernel call, at most (one AVX-512 register)
 constexpr int kMaxRadius = kTTestMaxRadius;  // window and pooling radii the lane arrays hold
 constexpr int kMaxSpan = 2 * (2 * kMaxRadius) + 1;
 
@@ -54,10 +52,10 @@ struct Setup {
   double sigma_scale = 100.0, sigma_floor = 1e-3;
 };
 
-// Statistics of up to kLanes consecutive pixels of one row.
+// Statistics of up to kMaxLanes consecutive pixels of one row.
 struct LaneStats {
-  double t[3][kLanes];
-  double dof[kLanes];
+  double t[3][kMaxLanes];
+  double dof[kMaxLanes];
 };
 
 // Width of the pooling box around coordinate c in [0, n): (2r+1) clipped to the image.
@@ -65,165 +63,73 @@ inline int box_width(int c, int r, int n) {
   return std::min(c + r, n - 1) - std::max(c - r, 0) + 1;
 }
 
-// kLanes doubles: one AVX-512 register, two AVX2 ones, four SSE2 ones (GCC vector extension;
-// element-wise arithmetic, so every build rounds alike and tiles equal the whole image).
-using Lane = double __attribute__((vector_size(kLanes * sizeof(double))));
-using LaneMask = long long __attribute__((vector_size(kLanes * sizeof(long long))));
+// Kernel builds (no -march=native; chosen at run time): one register of doubles per Lane, so the
+// window loop's ten accumulators stay in registers (an 8-double Lane on AVX2 is two registers
+// each, and spilled: the t-test cost 4-6x the AVX-512 build's on an AVX2 machine).
+using KernelFn = void (*)(const Planes&, const Setup&, int px0, int py, int n, LaneStats& out);
 
-// Unaligned loads through memcpy (no vector-returning helper: that would change the ABI between
-// the multiversioned builds).
-#define PRODEN_LOAD(v, p) std::memcpy(&(v), (p), sizeof(Lane))
+namespace portable {
+constexpr int kLanes = 2;
+#include "tstat_kernel.inc"
+}  // namespace portable
 
-PRODEN_MULTIVERSION void lane_kernel(const Planes& pl, const Setup& s, int px0, int py, int n,
-                                     LaneStats& out) {
-  const int R = s.radius, P = s.pool, S = R + P;
-  double norm_a[kLanes], g_a[kMaxRadius + 1][kLanes];
-  double last_sigma = -1.0;  // the fine test's sigma is the same for every pixel: one exp
-  for (int l = 0; l < kLanes; ++l) {
-    const double mean_var = pl.vsum[pl.at(px0 + l, py)] / 3.0;
-    const double sigma =
-        std::max(s.sigma_scale * std::sqrt(std::clamp(mean_var, 0.0, 1.0)), s.sigma_floor);
-    norm_a[l] = 1.0 / (sigma * kSqrt2Pi);
-    if (sigma == last_sigma) {
-      for (int d = 0; d <= R; ++d) g_a[d][l] = g_a[d][l - 1];
-      continue;
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+#define PRODEN_TTEST_X86 1
+#pragma GCC push_options
+#pragma GCC target("avx2")
+namespace avx2 {
+constexpr int kLanes = 4;
+#include "tstat_kernel.inc"
+}  // namespace avx2
+#pragma GCC pop_options
+
+#pragma GCC push_options
+#pragma GCC target("avx512f")
+namespace avx512 {
+constexpr int kLanes = 8;
+#include "tstat_kernel.inc"
+}  // namespace avx512
+#pragma GCC pop_options
+#endif
+
+struct KernelBuild {
+  std::string name;
+  int lanes;
+  KernelFn fn;
+};
+
+// The builds this CPU runs, best last.
+const std::vector<KernelBuild>& kernel_builds() {
+  static const std::vector<KernelBuild> builds = [] {
+    std::vector<KernelBuild> b = {{"baseline", portable::kLanes, portable::lane_kernel}};
+#ifdef PRODEN_TTEST_X86
+    __builtin_cpu_init();
+    if (__builtin_cpu_supports("avx2")) b.push_back({"avx2", avx2::kLanes, avx2::lane_kernel});
+    if (__builtin_cpu_supports("avx512f")) {
+      b.push_back({"avx512", avx512::kLanes, avx512::lane_kernel});
     }
-    last_sigma = sigma;
-    // k(dx, dy) = norm g(dx) g(dy) is separable, and g(d) = q^(d^2) with q = exp(-1 / 2 sigma^2)
-    // follows from g(d) = g(d - 1) q^(2d - 1): one exponential per pixel.
-    const double q = std::exp(-1.0 / (2.0 * sigma * sigma)), q2 = q * q;
-    double step = q;
-    g_a[0][l] = 1.0;
-    for (int d = 1; d <= R; ++d) {
-      g_a[d][l] = g_a[d - 1][l] * step;
-      step *= q2;
-    }
+#endif
+    return b;
+  }();
+  return builds;
+}
+
+const KernelBuild& kernel_build(const std::string& isa) {
+  const auto& builds = kernel_builds();
+  if (isa.empty()) return builds.back();
+  for (const auto& b : builds) {
+    if (b.name == isa) return b;
   }
-  Lane norm, g[kMaxRadius + 1];
-  PRODEN_LOAD(norm, norm_a);
-  for (int d = 0; d <= R; ++d) PRODEN_LOAD(g[d], g_a[d]);
-
-  // The window sums: D_c = sum k (z - x), V_c = sum k^2 var, and the highest-variance pixel M
-  // (the first maximum in raster order).
-  Lane D0{}, D1{}, D2{}, V0{}, V1{}, V2{}, mx{}, my{}, km{}, best = Lane{} - 2.0;
-  for (int dy = -R; dy <= R; ++dy) {
-    const Lane ky = norm * g[std::abs(dy)];
-    const Lane fdy = Lane{} + dy;
-    for (int dx = -R; dx <= R; ++dx) {
-      const std::size_t b = pl.at(px0 + dx, py + dy);
-      const Lane k = ky * g[std::abs(dx)], k2 = k * k;
-      Lane d[3], v[3], sv;
-      for (int c = 0; c < 3; ++c) {
-        PRODEN_LOAD(d[c], pl.d[c].data() + b);
-        PRODEN_LOAD(v[c], pl.v[c].data() + b);
-      }
-      PRODEN_LOAD(sv, pl.vsum.data() + b);
-      D0 += k * d[0];
-      D1 += k * d[1];
-      D2 += k * d[2];
-      V0 += k2 * v[0];
-      V1 += k2 * v[1];
-      V2 += k2 * v[2];
-      const LaneMask gt = sv > best;
-      best = gt ? sv : best;
-      mx = gt ? Lane{} + dx : mx;
-      my = gt ? fdy : my;
-      km = gt ? k : km;
-    }
-  }
-
-  // Welch-Satterthwaite: Var-hat = sum_r b_r vhat_r over the raw per-pixel estimates, with
-  // b_r = sum_q w_q^2 [r in box(q)] / |box(q)|; dof = (sum b sigma^2)^2 / sum (b sigma^2)^2 /
-  // dof_r, sigma_r^2 plugged in as the pooled estimate (docs/pipeline.md). The Gaussian part of w^2
-  // and the clipped box are separable: b_r = hx(rx) hy(ry) (hy holding norm^2), plus M's extra
-  // weight.
-  Lane hx[kMaxSpan], hy[kMaxSpan], a1{}, a2{};
-  if (s.dof) {
-    // hx(o) = sum over window columns d with |o - d| <= P of g(d)^2 / |box|, |box| and the
-    // window clipped to the image (cx, cy: 1 / box width inside the image, 0 outside).
-    for (int o = -S; o <= S; ++o) {
-      Lane sx{}, sy{};
-      for (int d = std::max(-R, o - P); d <= std::min(R, o + P); ++d) {
-        const Lane g2 = g[std::abs(d)] * g[std::abs(d)];
-        Lane cx;
-        PRODEN_LOAD(cx, pl.cx.data() + (px0 + d - pl.rect.x0));
-        sx += g2 * cx;
-        sy += g2 * pl.cy[static_cast<std::size_t>(py + d - pl.rect.y0)];
-      }
-      hx[o + S] = sx;
-      hy[o + S] = sy * (norm * norm);  // k^2 = norm^2 g^2 g^2
-    }
-    // b_r = hy(ry) hx(rx): both sums by rows, sum_y hy (sum_x hx pbar) and the same in squares.
-    Lane hx2[kMaxSpan];
-    for (int o = 0; o <= 2 * S; ++o) hx2[o] = hx[o] * hx[o];
-    for (int oy = -S; oy <= S; ++oy) {
-      Lane r1{}, r2{};
-      const std::size_t row = pl.at(px0 - S, py + oy);
-      for (int o = 0; o <= 2 * S; ++o) {
-        Lane pb, q;
-        PRODEN_LOAD(pb, pl.pbar.data() + row + o);
-        PRODEN_LOAD(q, pl.q.data() + row + o);
-        r1 += hx[o] * pb;
-        r2 += hx2[o] * q;
-      }
-      const Lane wy = hy[oy + S];
-      a1 += wy * r1;
-      a2 += wy * wy * r2;
-    }
-  }
-
-  for (int l = 0; l < n; ++l) {
-    const int px = px0 + l;
-    const int qx = px + static_cast<int>(mx[l]), qy = py + static_cast<int>(my[l]);
-    const std::size_t m = pl.at(qx, qy);
-    const double Dl[3] = {D0[l], D1[l], D2[l]}, Vl[3] = {V0[l], V1[l], V2[l]};
-    if (!s.proden) {
-      // The authors' statistic: channels summed, M's three channels added to both sums with
-      // weight 1/3 and its variance with 1/9 (as if M were an independent extra pixel).
-      double num = 0.0, var = 0.0;
-      for (int c = 0; c < 3; ++c) {
-        num += Dl[c] + pl.d[c][m] / 3.0;
-        var += Vl[c] + pl.v[c][m] / 9.0;
-      }
-      const double t = std::abs(num) / (std::sqrt(std::max(var, 0.0)) + 1e-6);
-      for (int c = 0; c < 3; ++c) out.t[c][l] = t;
-      out.dof[l] = kInf;
-      continue;
-    }
-    // M's weight becomes k_M + 1/3, so its variance weight grows by (k_M + 1/3)^2 - k_M^2.
-    const double cm = 2.0 * km[l] / 3.0 + 1.0 / 9.0;
-    for (int c = 0; c < 3; ++c) {
-      const double num = Dl[c] + pl.d[c][m] / 3.0;
-      const double var = Vl[c] + cm * pl.v[c][m];
-      out.t[c][l] = std::abs(num) / (std::sqrt(std::max(var, 0.0)) + 1e-6);
-    }
-    double dof = kInf;
-    if (s.dof) {
-      double n1 = a1[l], n2 = a2[l];
-      const double mw = cm / (box_width(qx, P, s.width) * box_width(qy, P, s.height));
-      for (int ry = std::max(qy - P, 0); ry <= std::min(qy + P, s.height - 1); ++ry) {
-        for (int rx = std::max(qx - P, 0); rx <= std::min(qx + P, s.width - 1); ++rx) {
-          const std::size_t r = pl.at(rx, ry);
-          const double sr = hy[ry - py + S][l] * hx[rx - px + S][l];
-          n1 += mw * pl.pbar[r];
-          n2 += (2.0 * sr * mw + mw * mw) * pl.q[r];
-        }
-      }
-      // With the raw estimates plugged in, (sum b vhat)^2 overstates (sum b sigma^2)^2 by
-      // Var[sum b vhat] = 2 sum b^2 sigma^4 / nu, i.e. the ratio by 2.
-      if (n2 > 0.0 && n1 > 0.0) dof = std::max(n1 * n1 / n2 - (pl.raw ? 2.0 : 0.0), 1.0);
-    }
-    out.dof[l] = dof;
-  }
+  throw std::invalid_argument("t-test: kernel build '" + isa + "' is not available on this CPU");
 }
 
 Planes make_planes(const View& x, const View& variance, const View& z, const Rect& out,
                    const Setup& s, const VarianceOrigin& origin) {
   Planes pl;
   const Rect image{0, 0, s.width, s.height};
-  // kLanes - 1 more columns on the right: the kernel always computes whole lane blocks.
+  // kMaxLanes - 1 more columns on the right: the kernel always computes whole lane blocks.
   pl.rect = out.expanded(s.radius + s.pool);
-  pl.rect.x1 += kLanes - 1;
+  pl.rect.x1 += kMaxLanes - 1;
   pl.w = static_cast<std::size_t>(pl.rect.width());
   const std::size_t n = pl.rect.area();
   for (int c = 0; c < 3; ++c) {
@@ -469,11 +375,12 @@ void t_rescale(const View& x, const View& variance, const View& z, const View& a
   const Setup s = make_setup(p, origin, width, height);
   const Planes pl = make_planes(x, variance, z, out, s, origin);
   const RejectionCurve* curve = s.proden ? &RejectionCurve::shared(p.t0, p.slope) : nullptr;
+  const KernelBuild& kb = kernel_build(p.isa);
   LaneStats st;
   for (int py = out.y0; py < out.y1; ++py) {
-    for (int px0 = out.x0; px0 < out.x1; px0 += kLanes) {
-      const int n = std::min(kLanes, out.x1 - px0);
-      lane_kernel(pl, s, px0, py, n, st);
+    for (int px0 = out.x0; px0 < out.x1; px0 += kb.lanes) {
+      const int n = std::min(kb.lanes, out.x1 - px0);
+      kb.fn(pl, s, px0, py, n, st);
       for (int l = 0; l < n; ++l) {
         double t[3] = {st.t[0][l], st.t[1][l], st.t[2][l]}, keep[3];
         if (curve) {
@@ -495,11 +402,17 @@ TStatistic t_statistic(const View& x, const View& variance, const View& z, int w
   const Rect out{px, py, px + 1, py + 1};
   const Planes pl = make_planes(x, variance, z, out, s, origin);
   LaneStats st;
-  lane_kernel(pl, s, px, py, 1, st);
+  kernel_build(params.isa).fn(pl, s, px, py, 1, st);
   TStatistic r;
   for (int c = 0; c < 3; ++c) r.t[c] = st.t[c][0];
   r.dof = st.dof[0];
   return r;
+}
+
+std::vector<std::string> t_test_builds() {
+  std::vector<std::string> out;
+  for (const auto& b : kernel_builds()) out.push_back(b.name);
+  return out;
 }
 
 }  // namespace proden

@@ -247,6 +247,72 @@ TEST_CASE("the statistic and its Welch-Satterthwaite dof equal their definitions
   CHECK(std::isinf(t_statistic(view_of(x), view_of(pooled), view_of(z), W, H, 11, 9, p).dof));
 }
 
+TEST_CASE("every t-test kernel build gives the same bits", "[ttest][isa]") {
+  // Odd sizes (rows end mid-lane in every build), a firefly, pass counts 1..5, and widths from the
+  // floor to the clamp; the three tests the pipeline runs (proden's pooled 11x11, the fine 5x5
+  // and the authors' summed statistic).
+  const int W = 41, H = 23, pool = 2;
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<float> un(0.0f, 1.0f);
+  Image x(W, H, 3), z(W, H, 3), var(W, H, 3), alpha(W, H, 3), passes(W, H, 1);
+  for (int y = 0; y < H; ++y) {
+    for (int xx = 0; xx < W; ++xx) {
+      passes.at(xx, y, 0) = static_cast<float>(1 + (xx * 5 + y * 3) % 5);
+      for (int c = 0; c < 3; ++c) {
+        x.at(xx, y, c) = un(rng);
+        z.at(xx, y, c) = x.at(xx, y, c) + 0.05f * (un(rng) - 0.5f);
+        alpha.at(xx, y, c) = un(rng);
+        var.at(xx, y, c) =
+            xx == 20 && y == 11 ? 40.0f : 1e-6f + 5e-4f * un(rng) * static_cast<float>(xx % 9);
+      }
+    }
+  }
+  const Image pooled = pool_variance(var, pool);
+  const VarianceOrigin origin{view_of(passes), false, pool, view_of(var)};
+  const auto builds = t_test_builds();
+  REQUIRE(builds.front() == "baseline");
+  INFO("builds on this CPU: " << builds.size());
+  TTestParams fine{.radius = 2, .sigma_scale = 0.0f, .sigma_floor = 1.0f};
+  TTestParams authors;
+  authors.dof_correction = false;
+  for (const TTestParams& base : {TTestParams{}, fine, authors}) {
+    const Rect whole{0, 0, W, H}, part{3, 2, 30, 19};
+    for (const Rect& out : {whole, part}) {
+      std::vector<std::vector<float>> got;
+      std::vector<TStatistic> stat;
+      for (const auto& isa : builds) {
+        TTestParams p = base;
+        p.isa = isa;
+        Buffer r(out, 3);
+        t_rescale(view_of(x), view_of(pooled), view_of(z), view_of(alpha), W, H, out, p, r, origin);
+        got.emplace_back();
+        for (int c = 0; c < 3; ++c) {
+          for (int y = out.y0; y < out.y1; ++y) {
+            for (int xx = out.x0; xx < out.x1; ++xx) got.back().push_back(r.at(xx, y, c));
+          }
+        }
+        stat.push_back(
+            t_statistic(view_of(x), view_of(pooled), view_of(z), W, H, 20, 11, p, origin));
+      }
+      for (std::size_t b = 1; b < builds.size(); ++b) {
+        INFO("build " << builds[b] << " against baseline, radius " << base.radius);
+        CHECK(got[b] == got[0]);
+        for (int c = 0; c < 3; ++c) CHECK(stat[b].t[c] == stat[0].t[c]);
+        CHECK(stat[b].dof == stat[0].dof);
+      }
+      // The baseline's output is not constant: the comparison above has something to compare.
+      CHECK(
+          std::any_of(got[0].begin(), got[0].end(), [&](float v) { return v != got[0].front(); }));
+    }
+  }
+  TTestParams bad;
+  bad.isa = "sse9";
+  Buffer b(Rect{0, 0, 1, 1}, 3);
+  CHECK_THROWS_AS(t_rescale(view_of(x), view_of(pooled), view_of(z), view_of(alpha), W, H,
+                            Rect{0, 0, 1, 1}, bad, b, origin),
+                  std::invalid_argument);
+}
+
 namespace {
 
 enum class Noise {

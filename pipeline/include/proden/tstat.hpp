@@ -5,6 +5,7 @@
 // docs/pipeline.md, "The t-test's statistics".
 #pragma once
 
+#include <string>
 #include <vector>
 
 #include "proden/image.hpp"
@@ -27,7 +28,13 @@ struct TTestParams {
   // the authors' tail probability 1 - Phi(t0) whatever the pass count. Off: exactly the authors'
   // test (channels summed, M's variance counted as if independent, u = t).
   bool dof_correction = true;
+  // Kernel build: "" = the best for this CPU, or one of t_test_builds() (tests compare them; every
+  // build gives the same bits).
+  std::string isa = {};
 };
+
+// The t-test's kernel builds this CPU runs ("baseline", "avx2", "avx512"), best last.
+std::vector<std::string> t_test_builds();
 
 // Where the variance the t-test reads came from: it sets the degrees of freedom of its estimate.
 struct VarianceOrigin {
