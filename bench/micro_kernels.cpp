@@ -97,17 +97,21 @@ void BM_NlMeans(benchmark::State& state) {
 }
 BENCHMARK(BM_NlMeans)->Args({0, 1})->Args({1, 1})->Args({0, 0})->Args({1, 0});
 
+// The kernel build that arg 0 indexes in `builds` (best last), or "" when this CPU has no such
+// build (the benchmark is then skipped with that error).
+std::string build_arg(benchmark::State& state, const std::vector<std::string>& builds) {
+  const auto which = static_cast<std::size_t>(state.range(0));
+  if (which < builds.size()) return builds[which];
+  state.SkipWithError("build not available on this CPU");
+  return {};
+}
+
 // The NL-means kernel per build (0 baseline, 1 avx2, 2 avx512), with the Jacobian and features.
 void BM_NlMeansIsa(benchmark::State& state) {
-  const std::vector<std::string> isas = nlmeans_isas_available();
-  const auto which = static_cast<std::size_t>(state.range(0));
-  if (which >= isas.size()) {
-    state.SkipWithError("build not available on this CPU");
-    return;
-  }
-  const Frame& f = frame();
   NlMeansParams p;
-  p.isa = isas[which];
+  p.isa = build_arg(state, nlmeans_isas_available());
+  if (p.isa.empty()) return;
+  const Frame& f = frame();
   const NlMeansDenoiser nl(p);
   const DenoiseInputs in = nlmeans_inputs(f, true);
   Buffer y(kOut, 3), d(kOut, 3);
@@ -259,15 +263,10 @@ BENCHMARK(BM_TRescale)->Args({0, 0})->Args({0, 1})->Args({1, 1});
 // The pipeline's case of BM_TRescale (11x11, 8 passes pooled) with each kernel build this CPU
 // runs (arg: index in t_test_builds(), best last).
 void BM_TRescaleIsa(benchmark::State& state) {
-  const std::vector<std::string> isas = t_test_builds();
-  const auto which = static_cast<std::size_t>(state.range(0));
-  if (which >= isas.size()) {
-    state.SkipWithError("build not available on this CPU");
-    return;
-  }
-  const Frame& f = frame();
   TTestParams p;
-  p.isa = isas[which];
+  p.isa = build_arg(state, t_test_builds());
+  if (p.isa.empty()) return;
+  const Frame& f = frame();
   static const Image passes(kW, kW, 1, 8.0f);
   static const Image pooled = pool_variance(f.var, 2);
   const VarianceOrigin origin{view_of(passes), false, 2, view_of(f.var)};
