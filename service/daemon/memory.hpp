@@ -1,6 +1,7 @@
-// Gives the heap's free pages back to the system, so that an idle daemon's resident memory
-// follows what it holds rather than the high-water mark of its largest frame run (glibc keeps
-// freed memory in per-thread arenas otherwise; bench/results/soak.md measured the difference).
+// The daemon's memory: gives the heap's free pages back to the system, so that an idle daemon's
+// resident memory follows what it holds rather than the high-water mark of its largest frame run
+// (glibc keeps freed memory in per-thread arenas otherwise; bench/results/soak.md measured the
+// difference), and says how much memory the process may use (the resident frames' budget).
 #pragma once
 
 #include <cstddef>
