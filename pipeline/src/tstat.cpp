@@ -64,8 +64,9 @@ inline int box_width(int c, int r, int n) {
 }
 
 // Kernel builds (no -march=native; chosen at run time): one register of doubles per Lane, so the
-// window loop's ten accumulators stay in registers (an 8-double Lane on AVX2 is two registers
-// each, and spilled: the t-test cost 4-6x the AVX-512 build's on an AVX2 machine).
+// window loop's ten accumulators stay in registers. A fixed 8-double Lane was two registers each
+// on AVX2, where the accumulators spilled and (with the loads tstat_kernel.inc now avoids) the
+// t-test cost 4-6x the AVX-512 build's (bench/RESULTS.md, "The t-test on AVX2").
 using KernelFn = void (*)(const Planes&, const Setup&, int px0, int py, int n, LaneStats& out);
 
 namespace portable {
