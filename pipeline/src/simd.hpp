@@ -1,7 +1,11 @@
-// Function multiversioning for hot loops: the compiler emits AVX-512, AVX2 and baseline x86-64
-// versions and the loader picks the best for the CPU at run time, so shipped binaries stay
-// portable (no -march=native) and still use this machine's AVX-512.
+// Run-time choice of instruction set for hot loops, so shipped binaries stay portable (no
+// -march=native) and still use this machine's AVX-512: function multiversioning (the compiler
+// emits AVX-512, AVX2 and baseline x86-64 versions and the loader picks one), and the list of
+// builds a kernel compiled once per instruction set may run here.
 #pragma once
+
+#include <string>
+#include <vector>
 
 // Not under the sanitizers: their instrumented ifunc resolvers would run before the runtime starts.
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
@@ -10,3 +14,20 @@
 #else
 #define PRODEN_MULTIVERSION
 #endif
+
+namespace proden {
+
+// The per-instruction-set kernel builds this CPU runs, best last: "baseline", then "avx2" (AVX2
+// and FMA), then "avx512" (AVX-512F). Only "baseline" where GCC's per-target builds are not
+// compiled (other compilers, other architectures).
+inline std::vector<std::string> cpu_kernel_builds() {
+  std::vector<std::string> out = {"baseline"};
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
+  __builtin_cpu_init();
+  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) out.emplace_back("avx2");
+  if (__builtin_cpu_supports("avx512f")) out.emplace_back("avx512");
+#endif
+  return out;
+}
+
+}  // namespace proden

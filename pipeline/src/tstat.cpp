@@ -15,6 +15,8 @@
 #include <string>
 #include <utility>
 
+#include "simd.hpp"
+
 namespace proden {
 namespace {
 
@@ -102,14 +104,14 @@ struct KernelBuild {
 // The builds this CPU runs, best last.
 const std::vector<KernelBuild>& kernel_builds() {
   static const std::vector<KernelBuild> builds = [] {
-    std::vector<KernelBuild> b = {{"baseline", portable::kLanes, portable::lane_kernel}};
+    std::vector<KernelBuild> b;
+    for (const auto& name : cpu_kernel_builds()) {
 #ifdef PRODEN_TTEST_X86
-    __builtin_cpu_init();
-    if (__builtin_cpu_supports("avx2")) b.push_back({"avx2", avx2::kLanes, avx2::lane_kernel});
-    if (__builtin_cpu_supports("avx512f")) {
-      b.push_back({"avx512", avx512::kLanes, avx512::lane_kernel});
-    }
+      if (name == "avx512") b.push_back({name, avx512::kLanes, avx512::lane_kernel});
+      if (name == "avx2") b.push_back({name, avx2::kLanes, avx2::lane_kernel});
 #endif
+      if (name == "baseline") b.push_back({name, portable::kLanes, portable::lane_kernel});
+    }
     return b;
   }();
   return builds;

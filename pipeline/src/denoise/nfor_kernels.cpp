@@ -10,6 +10,8 @@
 
 #include "nfor_internal.hpp"
 
+#include "../simd.hpp"
+
 #if defined(__x86_64__)
 #include <immintrin.h>
 #endif
@@ -96,13 +98,7 @@ constexpr Kernels kAvx512{"avx512", 16, avx512::regress, avx512::normal_equation
 }  // namespace
 
 std::vector<std::string> isas_available() {
-  std::vector<std::string> out = {"baseline"};
-#ifdef PRODEN_NFOR_X86
-  __builtin_cpu_init();
-  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) out.emplace_back("avx2");
-  if (__builtin_cpu_supports("avx512f")) out.emplace_back("avx512");
-#endif
-  return out;
+  return cpu_kernel_builds();
 }
 
 const Kernels& kernels(const std::string& isa) {

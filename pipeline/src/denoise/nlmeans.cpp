@@ -8,6 +8,8 @@
 #include <string>
 #include <vector>
 
+#include "../simd.hpp"
+
 #if defined(__x86_64__)
 #include <immintrin.h>
 #endif
@@ -140,12 +142,12 @@ BuildInfo info(Build b) {
 }
 
 std::vector<Build> builds_available() {
-  std::vector<Build> out = {Build::baseline};
-#ifdef PRODEN_NLMEANS_X86
-  __builtin_cpu_init();
-  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) out.push_back(Build::avx2);
-  if (__builtin_cpu_supports("avx512f")) out.push_back(Build::avx512);
-#endif
+  std::vector<Build> out;
+  for (const auto& name : cpu_kernel_builds()) {
+    out.push_back(name == "avx512" ? Build::avx512
+                  : name == "avx2" ? Build::avx2
+                                   : Build::baseline);
+  }
   return out;
 }
 

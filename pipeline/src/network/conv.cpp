@@ -5,6 +5,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "../simd.hpp"
+
 #if defined(__x86_64__)
 #include <immintrin.h>
 #endif
@@ -91,12 +93,8 @@ constexpr int kP1 = 16, kP2 = 12, kP3 = 7;
 enum class Isa { baseline, avx2, avx512 };
 
 Isa hardware() {
-#ifdef PRODEN_X86_DISPATCH
-  __builtin_cpu_init();
-  if (__builtin_cpu_supports("avx512f")) return Isa::avx512;
-  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return Isa::avx2;
-#endif
-  return Isa::baseline;
+  const std::string best = cpu_kernel_builds().back();
+  return best == "avx512" ? Isa::avx512 : best == "avx2" ? Isa::avx2 : Isa::baseline;
 }
 
 // The best build for this CPU, capped by PRODEN_CONV_ISA=avx2|baseline (to measure or rule out
