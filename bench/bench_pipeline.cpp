@@ -11,10 +11,18 @@
 //
 //   proden_bench_pipeline [--width W --height H] [--no-4k] [--no-mc] [--no-io] [--threads N]
 //                         [--cycles-spp-seconds S] [--json FILE] [--tmp DIR] [--repeat N]
+//                         [--pass FILE]...
 //
-// --repeat N: the estimate, each pipeline and the denoiser alone run N times on the same objects
-// (warm scratch and heap, as in a daemon that keeps a frame), each stage's median reported; 1
-// (the default) is one cold call, whose time includes first-touch page faults.
+// --pass FILE (repeated): a real frame instead of the synthetic ones, its passes in this order
+// (e.g. Cycles renders of bench/cycles_frame.py at 1920x1080): the last is the one read and
+// added timed, and the update publishes what the pipeline made of the real frame. Synthetic
+// noise compresses worse than a rendered frame: the published frame's PIZ write took 2.0 s on
+// synthetic data and 1.0 s on a Cycles cornell frame (bench/RESULTS.md).
+//
+// --repeat N: the estimate, each pipeline, the denoiser alone and the published frame's write run
+// N times on the same objects (warm scratch and heap, as in a daemon that keeps a frame), each
+// stage's median reported; 1 (the default) is one cold call, whose time includes first-touch page
+// faults.
 #include <tbb/global_control.h>
 
 #include <sys/resource.h>
@@ -125,6 +133,7 @@ int main(int argc, char** argv) {
   double cycles_spp_s = 0;
   std::string json_path, tmp = fs::temp_directory_path().string();
   unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  std::vector<std::string> real;  // --pass files: a real frame
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     const bool more = i + 1 < argc;
@@ -148,29 +157,55 @@ int main(int argc, char** argv) {
       tmp = argv[++i];
     else if (a == "--repeat" && more)
       repeat = std::max(1, std::atoi(argv[++i]));
+    else if (a == "--pass" && more)
+      real.emplace_back(argv[++i]);
     else {
-      std::fprintf(
-          stderr,
-          "usage: %s [--width W --height H] [--no-4k] [--no-mc] [--no-io] "
-          "[--threads N] [--cycles-spp-seconds S] [--json FILE] [--tmp DIR] [--repeat N]\n",
-          argv[0]);
+      std::fprintf(stderr,
+                   "usage: %s [--width W --height H] [--no-4k] [--no-mc] [--no-io] "
+                   "[--threads N] [--cycles-spp-seconds S] [--json FILE] [--tmp DIR] [--repeat N] "
+                   "[--pass FILE]...\n",
+                   argv[0]);
       return 2;
     }
   }
-  if (w > 0 && h > 0)
+  // A real frame: its passes read once (all but the last untimed), its size the only size.
+  std::vector<Pass> real_passes;
+  double real_read_s = 0, real_mb = 0;
+  for (std::size_t k = 0; k < real.size(); ++k) {
+    const auto t0 = Clock::now();
+    real_passes.push_back(io::read_pass(real[k]));
+    if (k + 1 == real.size()) {
+      real_read_s = since(t0);
+      real_mb = static_cast<double>(fs::file_size(real[k])) / 1e6;
+    }
+    if (real_passes.back().width() != real_passes.front().width() ||
+        real_passes.back().height() != real_passes.front().height()) {
+      std::fprintf(stderr, "%s: not the size of %s\n", real[k].c_str(), real[0].c_str());
+      return 2;
+    }
+  }
+  if (!real_passes.empty())
+    sizes = {{real_passes.front().width(), real_passes.front().height()}};
+  else if (w > 0 && h > 0)
     sizes = {{w, h}};
   else if (!four_k)
     sizes.resize(1);
-  const int npass = 8;
+  const int npass = real_passes.empty() ? 8 : static_cast<int>(real_passes.size());
   const double spp_per_pass = 4;
   const unsigned thr[2] = {1u, cores};
   std::vector<SizeResult> results;
 
+  if (real_passes.empty()) {
+    std::printf("synthetic Cycles-like frames: HDR+ALB+NRM+DEP, %d passes x %.0f spp; ", npass,
+                spp_per_pass);
+  } else {
+    std::printf("a real frame: %d passes (%s ... %s); ", npass, real.front().c_str(),
+                real.back().c_str());
+  }
   std::printf(
-      "synthetic Cycles-like frames: HDR+ALB+NRM+DEP, %d passes x %.0f spp; default "
-      "pipeline (NL-means r=5 f=3, closed-form Stein mixer r=12, t-test, tile 256); "
+      "default pipeline (NL-means r=5 f=3, closed-form Stein mixer r=12, t-test, tile 256); "
       "threads 1 and %u; estimate and pipeline: %s\n",
-      npass, spp_per_pass, cores,
+      cores,
       repeat > 1 ? ("median of " + std::to_string(repeat) + " warm runs").c_str() : "one cold run");
   for (const auto& [W, H] : sizes) {
     SizeResult s;
@@ -179,10 +214,16 @@ int main(int argc, char** argv) {
     const double mp = static_cast<double>(W) * H / 1e6;
     std::printf("\n== %dx%d (%.2f MP)\n", W, H, mp);
     std::fflush(stdout);
-    // Passes: 7 in memory, the last one through an EXR round trip when I/O is measured.
-    std::vector<Pass> passes;
-    for (int k = 0; k < npass; ++k) passes.push_back(synthetic_pass(W, H, k, spp_per_pass));
-    if (io) {
+    // Passes: 7 in memory, the last one through an EXR round trip when I/O is measured; or the
+    // real frame's, read above.
+    std::vector<Pass> passes = std::move(real_passes);
+    if (passes.empty()) {
+      for (int k = 0; k < npass; ++k) passes.push_back(synthetic_pass(W, H, k, spp_per_pass));
+    } else if (io) {
+      s.read_s = real_read_s;
+      s.exr_mb = real_mb;
+    }
+    if (io && real.empty()) {
       const std::string path = (fs::path(tmp) / ("proden_bench_pass_" + std::to_string(W) + "x" +
                                                  std::to_string(H) + ".exr"))
                                    .string();
@@ -273,10 +314,14 @@ int main(int argc, char** argv) {
       io::write_image(path, W, H, ch);
       s.write_s = since(t0);
       // What the daemon writes for every version (protocol/publish.hpp): every layer, the
-      // default compression.
-      t0 = Clock::now();
-      protocol::write_frame(path, run, {}, protocol::FrameFormat{});
-      s.write_published_s = since(t0);
+      // default compression; with --repeat, the median of that many writes.
+      std::vector<double> writes;
+      for (int i = 0; i < repeat; ++i) {
+        t0 = Clock::now();
+        protocol::write_frame(path, run, {}, protocol::FrameFormat{});
+        writes.push_back(since(t0));
+      }
+      s.write_published_s = bench::median(writes);
       s.published_channels = 3 * (1 + static_cast<int>(run.layers().size()));
       fs::remove(path);
     }
@@ -284,10 +329,11 @@ int main(int argc, char** argv) {
     s.update_s = s.read_s + s.add_s[1] + s.estimate_s[1] + s.an[1].wall + s.write_published_s;
 
     std::printf(
-        "I/O: read one Cycles pass EXR (float, zip, 10 ch, %.1f MB) %.3f s; write result "
+        "I/O: read one %s pass EXR (%.1f MB) %.3f s; write result "
         "RGB %.3f s, the published frame (%d ch, %s) %.3f s\n",
-        s.exr_mb, s.read_s, s.write_s, s.published_channels,
-        std::string(protocol::kDefaultFrameCompression).c_str(), s.write_published_s);
+        real.empty() ? "synthetic Cycles-like (float, zip, 10 ch)" : "real", s.exr_mb, s.read_s,
+        s.write_s, s.published_channels, std::string(protocol::kDefaultFrameCompression).c_str(),
+        s.write_published_s);
     std::printf("%-22s %9s %9s\n", "stage (s)", "1 thread",
                 (std::to_string(cores) + " threads").c_str());
     std::printf("%-22s %9.3f %9.3f\n", "accumulate (add 1)", s.add_s[0], s.add_s[1]);
@@ -337,8 +383,10 @@ int main(int argc, char** argv) {
               gemm_n, gf1, gfN, cores, how.c_str());
   std::printf("\nratios (same run, %dx%d unless noted):\n", a.w, a.h);
   if (cycles_spp_s > 0)
-    std::printf("  full update / one more Cycles spp (%.3f s)           %.2f   (goal < 1.0)\n",
-                cycles_spp_s, upd_ratio);
+    std::printf(
+        "  full update / one more Cycles spp (%.3f s)           %.2f   (issue 12: the fast path "
+        "<= 0.5, the default pipeline <= 2)\n",
+        cycles_spp_s, upd_ratio);
   else
     std::printf(
         "  full update / one more Cycles spp                    n/a (no --cycles-spp-seconds)\n");
@@ -368,7 +416,16 @@ int main(int argc, char** argv) {
       std::perror(json_path.c_str());
       return 1;
     }
-    std::fprintf(f, "{\n \"threads\": %u,\n \"repeat\": %d,\n \"sizes\": [\n", cores, repeat);
+    std::fprintf(f, "{\n \"threads\": %u,\n \"repeat\": %d,\n \"frame\": [", cores, repeat);
+    for (std::size_t k = 0; k < real.size(); ++k) {  // the real frame's passes; [] = synthetic
+      std::string q;
+      for (const char ch : real[k]) {
+        if (ch == '"' || ch == '\\') q += '\\';
+        q += ch;
+      }
+      std::fprintf(f, "%s\"%s\"", k ? ", " : "", q.c_str());
+    }
+    std::fprintf(f, "],\n \"sizes\": [\n");
     for (std::size_t i = 0; i < results.size(); ++i) {
       const SizeResult& s = results[i];
       std::fprintf(

@@ -53,6 +53,30 @@ def main():
                 fail(f"ratio {k} = {r[k]}")
         if not p["sgemm"]["gflops_1"] > 0:
             fail("sgemm")
+        if p["frame"] != []:
+            fail(f"synthetic frame listed as {p['frame']}")
+    with tempfile.TemporaryDirectory() as d:  # a real frame (--pass), as bench/update_cost.sh runs it
+        js = os.path.join(d, "update.json")
+        passes = [os.path.join(samples, "renders", "cornell", f"pass_0{k}.exr") for k in range(3)]
+        args = [os.path.join(bindir, "proden_bench_pipeline"), "--no-mc", "--threads", "2",
+                "--cycles-spp-seconds", "1", "--json", js, "--tmp", d]
+        for f in passes:
+            args += ["--pass", f]
+        out = subprocess.run(args, capture_output=True, text=True)
+        print(out.stdout)
+        if out.returncode != 0:
+            fail(f"proden_bench_pipeline --pass exit {out.returncode}: {out.stderr}")
+        p = json.load(open(js))
+        if p["frame"] != passes or len(p["sizes"]) != 1:
+            fail(f"real frame {p['frame']}, {len(p['sizes'])} sizes")
+        s = p["sizes"][0]
+        if (s["width"], s["height"]) != (128, 128) or not s["exr_mb"] > 0:
+            fail(f"real frame size {s['width']}x{s['height']}, {s['exr_mb']} MB")
+        for k in ("read_s", "write_published_s", "update_s"):
+            if not (finite(s[k]) and s[k] > 0):
+                fail(f"real frame sizes[0].{k} = {s[k]}")
+        if not finite(p["ratios"]["update_over_cycles_spp"]):
+            fail("real frame update ratio")
     with tempfile.TemporaryDirectory() as d:
         js = os.path.join(d, "network.json")
         out = subprocess.run([os.path.join(bindir, "proden_bench_network"), "--size", "40x24",

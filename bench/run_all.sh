@@ -11,10 +11,12 @@
 #   SCENES       default "cornell textured_dof glass interior"
 #   LEVELS       default "4 8 16 32 64 128 256 512 1024"
 #   RES          eval-set resolution (default 256)
-#   BLENDER, BLENDER_LOCK   passed to render_eval_set.sh (BLENDER_LOCK=FILE: one Blender at a time)
+#   BLENDER, BLENDER_LOCK   passed to render_eval_set.sh and update_cost.sh (BLENDER_LOCK=FILE:
+#                one Blender at a time)
 #   SKIP_RENDER=1    use the eval sets as they are
 #   SKIP_ACCURACY=1  keep bench/results/accuracy* (REUSE_ACCURACY=1: re-plot from the .jsonl)
-#   SKIP_PERF=1      keep bench/results/perf.* and micro.*   PERF_ARGS: extra bench_pipeline args
+#   SKIP_PERF=1      keep bench/results/perf.*, micro.*, update_* and cycles_1080p*   PERF_ARGS:
+#                extra bench_pipeline args (UPDATE_ARGS: bench/update_cost.sh's)
 #   SKIP_SAVINGS=1   keep bench/results/savings.md, mixers_*.md and levels_* (bench/savings.py
 #                    and bench/mixers.py --reuse re-tabulate them)
 #   SKIP_NFOR=1      keep bench/results/nfor_* (NFOR's speed against NL-means and its evaluation
@@ -32,8 +34,6 @@ OUT=bench/results
 PY=/usr/bin/python3
 BLENDER=${BLENDER:-blender}
 mkdir -p "$OUT"
-lock=()
-[[ -n ${BLENDER_LOCK:-} ]] && lock=(flock "$BLENDER_LOCK")
 
 if [[ ${SKIP_RENDER:-0} != 1 ]]; then
   for s in $SCENES; do
@@ -50,30 +50,16 @@ if [[ ${SKIP_ACCURACY:-0} != 1 ]]; then
       --scenes "$(tr ' ' ',' <<<"$SCENES")" "${reuse[@]}" > /dev/null
 fi
 
-header_seconds() { # EXR -> Blender render_time in seconds
-  oiiotool --info -v "$1" | sed -n 's/^ *cycles\.ViewLayer\.render_time: *"\(.*\)".*/\1/p' | head -n1 |
-    awk -F: '{ s = 0; for (i = 1; i <= NF; i++) s = s * 60 + $i; printf "%.2f", s }'
-}
-
 if [[ ${SKIP_PERF:-0} != 1 ]]; then
-  # One more Cycles sample per pixel of a 1920x1080 frame (cornell), right before the pipeline
-  # timing: render_time(4 spp) - render_time(1 spp), over 3. Blender's render_time excludes
-  # start-up, sync and BVH build.
-  echo "== Cycles cost of one more spp at 1920x1080"
-  tmp=$(mktemp -d)
-  trap 'rm -rf "$tmp"' EXIT
-  for spp in 1 4; do
-    PRODEN_SCENE=cornell PRODEN_W=1920 PRODEN_H=1080 "${lock[@]}" "$BLENDER" -b --factory-startup \
-      -noaudio -P bench/cycles_frame.py -- --seed $((spp + 7)) --spp $spp --res 1920 \
-      --out "$tmp/c$spp.exr" > "$tmp/blender$spp.log" 2>&1 \
-      || { cat "$tmp/blender$spp.log" >&2; exit 1; }
-  done
-  t1=$(header_seconds "$tmp/c1.exr")
-  t4=$(header_seconds "$tmp/c4.exr")
-  one=$(awk -v a="$t1" -v b="$t4" 'BEGIN { printf "%.4f", (b - a) / 3 }')
-  printf '{"scene": "cornell", "width": 1920, "height": 1080, "render_time_1spp": %s, "render_time_4spp": %s, "one_more_spp_seconds": %s}\n' \
-    "$t1" "$t4" "$one" > "$OUT/cycles_1080p.json"
-  echo "   1 spp $t1 s, 4 spp $t4 s -> one more spp $one s"
+  # One more Cycles sample per pixel of a 1920x1080 frame, and the full update on that real frame,
+  # for cornell and interior (bench/update_cost.sh: render_time(4 spp) - render_time(1 spp), over
+  # 3; Blender's render_time excludes start-up, sync and BVH build). The synthetic harness below
+  # compares with cornell's.
+  echo "== full 1080p update on real Cycles frames against one more spp"
+  BLENDER=$BLENDER bench/update_cost.sh --bin "$BIN" --out "$OUT" cornell interior
+  cp "$OUT/cycles_1080p_cornell.json" "$OUT/cycles_1080p.json"
+  one=$($PY -c 'import json, sys; print(json.load(open(sys.argv[1]))["one_more_spp_seconds"])' \
+    "$OUT/cycles_1080p.json")
   echo "== pipeline harness (1080p, 4K; 1 and $(nproc) threads)"
   "$BIN/proden_bench_pipeline" --cycles-spp-seconds "$one" --json "$OUT/perf.json" \
       ${PERF_ARGS:-} | tee "$OUT/perf.txt"
