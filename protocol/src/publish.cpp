@@ -55,6 +55,15 @@ std::string frame_compressions() {
   return s;
 }
 
+std::string_view resolve_frame_compression(std::string_view name, bool backlog) {
+  if (!is_frame_compression(name)) {
+    throw std::invalid_argument("compression '" + std::string(name) + "' is not one of " +
+                                frame_compressions());
+  }
+  if (name != "auto") return name;
+  return backlog ? "none" : "piz";
+}
+
 void write_frame(const std::string& path, const PipelineResult& run, const Attributes& attributes,
                  const FrameFormat& format, const AovAccumulator* aovs) {
   if (!is_frame_compression(format.compression)) {
@@ -72,7 +81,7 @@ void write_frame(const std::string& path, const PipelineResult& run, const Attri
   io::add_aovs(channels, aov_planes);
   io::WriteOptions w;
   w.half = format.half;
-  w.compression = format.compression;
+  w.compression = std::string(resolve_frame_compression(format.compression, format.backlog));
   w.attributes = attributes;
   if (aovs) {
     w.attributes.insert(w.attributes.end(), aovs->attributes().begin(), aovs->attributes().end());

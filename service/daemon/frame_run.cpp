@@ -91,6 +91,7 @@ FrameRun::Outcome FrameRun::run(Input in) {
   FrameRecord rec = std::move(in.record);
   std::shared_ptr<FrameAccumulator> acc = std::move(in.acc);
   std::shared_ptr<AovAccumulator> aovs = std::move(in.aovs);
+  backlog_ = std::move(in.backlog);
   std::vector<PendingPass>& batch = in.batch;
   std::sort(batch.begin(), batch.end(),
             [](const PendingPass& a, const PendingPass& b) { return pass_less(a.pass, b.pass); });
@@ -303,8 +304,13 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
         {"proden:converged", rec.convergence.converged() ? "true" : "false"},
     };
     if (!rec.view_layer.empty()) extra.emplace_back("proden:view_layer", rec.view_layer);
+    const bool backlog = backlog_ && backlog_();
     const auto outputs = FrameProcessor::publish(out, output_base(spec, frame_no).string(),
-                                                 spec.output, extra, aovs.get());
+                                                 spec.output, extra, aovs.get(), backlog);
+    if (protocol::resolve_frame_compression(spec.output.compression, backlog) !=
+        protocol::resolve_frame_compression(spec.output.compression, false)) {
+      metrics_.inc("proden_publish_uncompressed_total");
+    }
     // Older versions stay addressable (docs/api.md, "History and older versions"): the
     // versions/ directory is made beneath the output root like output.dir itself.
     if (roots) {

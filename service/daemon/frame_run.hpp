@@ -70,6 +70,9 @@ class FrameRun {
     // for tests of runs that read only stored uploads); reads are bounded by `limits`.
     const Roots* roots = nullptr;
     io::ReadLimits limits;
+    // Asked when the version is written: do other frames wait for a worker? (An `auto`
+    // output.compression then writes it uncompressed.) Empty: no.
+    std::function<bool()> backlog;
   };
   enum class Result {
     done,              // ran to the end (some passes may have failed)
@@ -96,6 +99,7 @@ class FrameRun {
   Metrics& metrics_;
   EventHub& events_;
   Hooks hooks_;
+  std::function<bool()> backlog_;  // Input::backlog of the run
 };
 
 }  // namespace proden::daemon

@@ -35,6 +35,9 @@ Metrics::Metrics()
   declare("proden_evictions_total", "counter",
           "Resident states dropped for max_resident_frames or max_resident_bytes (reloaded from "
           "their state file at their frame's next update)");
+  declare("proden_publish_uncompressed_total", "counter",
+          "Versions written uncompressed by output.compression auto while frames waited for a "
+          "worker");
   declare("proden_sse_clients", "gauge", "Connected Server-Sent Events clients");
   declare("proden_http_connections", "gauge", "Open HTTP connections");
 }

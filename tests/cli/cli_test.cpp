@@ -209,11 +209,11 @@ TEST_CASE("denoise --half writes half floats and --no-features reports HDR only"
   CHECK(in.header().channels().findChannel("render.R") == nullptr);  // no --aov
 }
 
-TEST_CASE("denoise --compression: PIZ by default, the values the same in every compression",
+TEST_CASE("denoise --compression: PIZ by default (auto), the values the same in every compression",
           "[cli]") {
   Scratch s;
   std::vector<std::vector<std::vector<float>>> values;
-  for (const std::string c : {"", "zip", "rle", "none"}) {
+  for (const std::string c : {"", "auto", "zip", "rle", "none"}) {
     const std::string out = s.file("c" + c + ".exr");
     const Run r = proden("denoise -q --aov" + (c.empty() ? "" : " --compression " + c) + " --out " +
                              out + join(passes("cornell")),
@@ -221,10 +221,10 @@ TEST_CASE("denoise --compression: PIZ by default, the values the same in every c
     INFO(r.err);
     REQUIRE(r.code == 0);
     Imf::InputFile in(out.c_str());
-    const Imf::Compression want = c.empty()    ? Imf::PIZ_COMPRESSION
-                                  : c == "zip" ? Imf::ZIP_COMPRESSION
-                                  : c == "rle" ? Imf::RLE_COMPRESSION
-                                               : Imf::NO_COMPRESSION;
+    const Imf::Compression want = c.empty() || c == "auto" ? Imf::PIZ_COMPRESSION
+                                  : c == "zip"             ? Imf::ZIP_COMPRESSION
+                                  : c == "rle"             ? Imf::RLE_COMPRESSION
+                                                           : Imf::NO_COMPRESSION;
     CHECK(in.header().compression() == want);
     int w = 0, h = 0;
     values.push_back(read_exr(out, {"R", "G", "B", "denoised.R", "alpha.G", "variance.B"}, &w, &h));
@@ -233,7 +233,7 @@ TEST_CASE("denoise --compression: PIZ by default, the values the same in every c
   const Run bad =
       proden("denoise -q --compression dwaa --out " + s.file("x.exr") + join(passes("cornell")), s);
   CHECK(bad.code != 0);
-  CHECK_THAT(bad.err, Catch::Contains("one of piz, zip, zips, rle, none"));
+  CHECK_THAT(bad.err, Catch::Contains("one of auto, piz, zip, zips, rle, none"));
 }
 
 TEST_CASE("eval agrees with metrics computed independently", "[cli][real]") {

@@ -1,6 +1,8 @@
 // FrameRun: one run of a frame: read, accumulate, commit (persist), publish, announce.
 #include <catch2/catch.hpp>
 
+#include <OpenImageIO/imageio.h>
+
 #include <fstream>
 
 #include "daemon/files.hpp"
@@ -32,6 +34,8 @@ struct Rig {
 
   Rig() { store.create_job(spec); }
 
+  std::function<bool()> backlog;  // FrameRun::Input::backlog
+
   FrameRun::Outcome run(std::vector<PendingPass> batch, FrameRecord rec = {},
                         bool has_state = false, bool republish = false,
                         std::shared_ptr<FrameAccumulator> acc = nullptr) {
@@ -53,6 +57,7 @@ struct Rig {
     in.republish = republish;
     in.acc = std::move(acc);
     in.batch = std::move(batch);
+    in.backlog = backlog;
     return fr.run(std::move(in));
   }
   fs::path watched(const std::string& pass) const { return t.path() / "w" / (pass + ".exr"); }
@@ -261,4 +266,41 @@ TEST_CASE("FrameRun: a version is in the history before it is recorded as publis
   const auto frames = r.events->of_type("frame");
   REQUIRE(frames.size() == 1);
   CHECK(frames[0].data["version"] == 1);
+}
+
+TEST_CASE("FrameRun: output.compression auto writes uncompressed only while frames wait",
+          "[daemon][frame_run]") {
+  // The published EXR's compression, as OpenEXR stored it.
+  const auto compression_of = [](const std::string& exr) {
+    auto in = OIIO::ImageInput::open(exr);
+    REQUIRE(in);
+    return in->spec().get_string_attribute("compression");
+  };
+  const auto uncompressed = [](Rig& r) {
+    const std::string text = r.metrics.render();
+    return text.find("proden_publish_uncompressed_total 1") != std::string::npos;
+  };
+  for (const bool waiting : {false, true}) {
+    for (const std::string c : {"auto", "piz", "zip"}) {
+      CAPTURE(waiting, c);
+      Rig r;
+      r.spec.output.compression = c;
+      int asked = 0;
+      r.backlog = [&] {
+        ++asked;
+        return waiting;
+      };
+      const auto p = test::write_pass(r.watched("1"), "1", 1);
+      REQUIRE(r.run({p}).result == FrameRun::Result::done);
+      CHECK(asked == 1);  // asked once, when the version is written
+      const std::string want = c == "auto" ? (waiting ? "none" : "piz") : c;
+      CHECK(compression_of(output_base(r.spec, 1).string() + ".exr") == want);
+      CHECK(uncompressed(r) == (c == "auto" && waiting));
+    }
+  }
+  // No backlog function (a run outside the engine): as if no frame waited.
+  Rig r;
+  const auto p = test::write_pass(r.watched("1"), "1", 1);
+  REQUIRE(r.run({p}).result == FrameRun::Result::done);
+  CHECK(compression_of(output_base(r.spec, 1).string() + ".exr") == "piz");
 }

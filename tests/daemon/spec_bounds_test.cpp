@@ -81,6 +81,19 @@ TEST_CASE("Job spec: output.compression is a lossless OpenEXR one, echoed back",
   CHECK_THROWS_AS(protocol::validate_job_spec(s), protocol::ApiError);
 }
 
+TEST_CASE("output.compression auto is PIZ, or none while frames wait; the others are themselves",
+          "[daemon][bounds]") {
+  CHECK(protocol::kDefaultFrameCompression == "auto");
+  CHECK(protocol::resolve_frame_compression("auto") == "piz");
+  CHECK(protocol::resolve_frame_compression("auto", true) == "none");
+  for (const auto c : protocol::kFrameCompressions) {
+    if (c == "auto") continue;
+    CHECK(protocol::resolve_frame_compression(c, false) == c);
+    CHECK(protocol::resolve_frame_compression(c, true) == c);
+  }
+  CHECK_THROWS_AS(protocol::resolve_frame_compression("dwaa"), std::invalid_argument);
+}
+
 TEST_CASE("Config: every number is bounded and a refusal names the key", "[daemon][bounds]") {
   CHECK(config_refusal(daemon::to_json(daemon::Config{})).empty());  // the defaults are valid
   CHECK_THAT(config_refusal({{"worker_threads", 1e300}}), Catch::Contains("worker_threads"));

@@ -143,10 +143,13 @@ class PublishTest(PublishCase):
             self.assert_same_result(published, out)
 
     def test_output_compression(self):
-        """PIZ by default; a job's output.compression is what its published EXR says, echoed in
-        the job; a lossy or unknown one is refused naming the field."""
+        """PIZ by default (auto, with no other frame waiting); a job's output.compression is what
+        its published EXR says, echoed in the job; a lossy or unknown one is refused naming the
+        field."""
         jid, _, exr = self.publish("pub_piz")
         self.assertEqual(exr_header(exr)["compression"], ("compression", bytes([PIZ])))
+        s, job = self.d.json("GET", "/api/v1/jobs/" + jid)
+        self.assertEqual((s, job["output"]["compression"]), (200, "auto"))
         out = os.path.join(self.d.allowed, "pub_zip_out")
         jid, _, exr = self.publish("pub_zip", output={"dir": out, "compression": "zip"})
         self.assertEqual(exr_header(exr)["compression"], ("compression", bytes([ZIP])))
