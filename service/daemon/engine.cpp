@@ -281,7 +281,7 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
   }
   in.roots = &roots_;
   in.limits = read_limits(config_.input, config_.input.max_file_bytes);
-  in.backlog = [this] { return scheduler_->queued() > 0; };
+  in.backlog = [this, job_id, frame_no] { return scheduler_->backlog(job_id, frame_no); };
   const std::vector<PendingPass> batch = in.batch;
 
   FrameRun::Hooks hooks;

@@ -70,8 +70,8 @@ class FrameRun {
     // for tests of runs that read only stored uploads); reads are bounded by `limits`.
     const Roots* roots = nullptr;
     io::ReadLimits limits;
-    // Asked when the version is written: do other frames wait for a worker? (An `auto`
-    // output.compression then writes it uncompressed.) Empty: no.
+    // Asked when the version is written: does work wait for the workers (Scheduler::backlog)?
+    // An `auto` output.compression then writes it uncompressed. Empty: no.
     std::function<bool()> backlog;
   };
   enum class Result {

@@ -41,7 +41,7 @@ class FrameProcessor {
 
   // Writes <base>.exr (R,G,B + every layer as <layer>.R/G/B + the renderer AOVs, with the header
   // fields plus `extra`, compressed as output.compression says, `auto` resolved with `backlog`:
-  // frames wait for a worker) and, if output.png, <base>.png (tone-mapped result), atomically.
+  // work waits for the workers) and, if output.png, <base>.png (tone-mapped result), atomically.
   // Returns the paths written, the EXR first.
   static std::vector<std::string> publish(const ProcessedFrame& frame, const std::string& base,
                                           const protocol::OutputSpec& output,

@@ -136,6 +136,17 @@ bool Scheduler::busy(const std::string& job, long frame) const {
   return st.queued || st.running || st.again || st.delayed;
 }
 
+bool Scheduler::backlog(const std::string& job, long frame) const {
+  std::lock_guard lock(mu_);
+  const auto it = frames_.find({job, frame});
+  if (it != frames_.end() && it->second.running && it->second.again &&
+      it->second.again_due <= clock_.now()) {
+    return true;
+  }
+  return std::any_of(jobs_.begin(), jobs_.end(),
+                     [](const auto& j) { return !j.second.paused && !j.second.ready.empty(); });
+}
+
 std::size_t Scheduler::queued() const {
   std::lock_guard lock(mu_);
   std::size_t n = 0;

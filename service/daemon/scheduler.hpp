@@ -57,6 +57,10 @@ class Scheduler {
   void remove_job(const std::string& job);  // drops its queued frames (running ones finish)
 
   bool busy(const std::string& job, long frame) const;  // queued (now or later) or running
+  // Work waits that the workers are not doing: a frame of an active (unpaused) job is ready, or
+  // (job, frame), while it runs, has been asked for again with no delay (a pass arrived during
+  // the run). The daemon then publishes uncompressed (output.compression auto).
+  bool backlog(const std::string& job, long frame) const;
   std::size_t queued() const;
   int running() const;
   // Blocks until nothing runs and no frame of an active job is ready (frames waiting for a

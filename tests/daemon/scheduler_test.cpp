@@ -286,3 +286,30 @@ TEST_CASE("Scheduler: a frame queued for later runs when its time comes", "[daem
   s.enqueue("a", 3);  // now wins over later
   REQUIRE(proden::test::eventually([&] { return log.get().size() == 3; }));
 }
+
+TEST_CASE("Scheduler: backlog is a ready frame of an active job, or new work for the running one",
+          "[daemon][scheduler]") {
+  Gate gate;
+  std::atomic<int> runs{0};
+  Scheduler s(1, [&](const std::string&, long) {
+    if (runs++ == 0) gate.wait();
+  });
+  s.set_paused("p", true);
+  s.enqueue("p", 1);  // ready, but its job is paused: no backlog
+  s.start();
+  s.enqueue("a", 1);
+  gate.wait_for_waiter();  // a1 runs on the only worker
+  CHECK_FALSE(s.backlog("a", 1));
+  s.enqueue("a", 1, std::chrono::milliseconds(60000));  // asked again, but not before a minute
+  CHECK_FALSE(s.backlog("a", 1));
+  s.enqueue("a", 1);  // a pass arrived during the run: asked again now
+  CHECK(s.backlog("a", 1));
+  CHECK_FALSE(s.backlog("a", 2));  // another frame of the job: nothing ready
+  s.enqueue("b", 7);               // a frame of another job waits for the worker
+  CHECK(s.backlog("a", 2));
+  CHECK(s.backlog("x", 1));
+  gate.release();
+  REQUIRE(s.wait_idle(10000));
+  CHECK_FALSE(s.backlog("a", 1));  // idle; the paused job's frame still queued
+  CHECK(s.busy("p", 1));
+}

@@ -56,7 +56,7 @@ struct FrameFormat {
   bool layers = true;  // every layer of the run besides the result
   bool half = false;   // 16-bit halves instead of 32-bit floats
   std::string compression = std::string(kDefaultFrameCompression);  // one of kFrameCompressions
-  bool backlog = false;  // frames wait for a worker: `auto` writes uncompressed
+  bool backlog = false;  // work waits for the daemon's workers: `auto` writes uncompressed
 };
 
 // Writes `path` atomically: R,G,B = the result and, with `format.layers`, every layer of the run,
