@@ -78,10 +78,9 @@ void DenoiseCommand::add_to(CLI::App& app) {
   d.add_flag("--aov", den.aov,
              "Also write render, variance, denoised, alpha, sure and mixvariance layers");
   d.add_flag("--half", den.half, "Write 16-bit half floats instead of 32-bit");
-  d.add_option(
-       "--compression", den.compression,
-       "OpenEXR compression: " + protocol::frame_compressions() +
-           " (the job's output.compression; auto is piz here, where no frame waits)")
+  d.add_option("--compression", den.compression,
+               "OpenEXR compression: " + protocol::frame_compressions() +
+                   " (the job's output.compression; auto is piz here, where no frame waits)")
       ->check([](const std::string& c) {
         return protocol::is_frame_compression(c) ? std::string()
                                                  : "one of " + protocol::frame_compressions();

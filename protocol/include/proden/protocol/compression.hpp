@@ -20,7 +20,8 @@ inline constexpr std::string_view kDefaultFrameCompression = "auto";
 bool is_frame_compression(std::string_view name);
 std::string frame_compressions();  // "auto, piz, zip, zips, rle, none", for messages
 // The OpenEXR compression a frame is written with: `name` itself, or for `auto` PIZ, and `none`
-// when `backlog` (work waits for the daemon's workers). Throws std::invalid_argument for an unknown name.
+// when `backlog` (work waits for the daemon's workers). Throws std::invalid_argument for an unknown
+// name.
 std::string_view resolve_frame_compression(std::string_view name, bool backlog = false);
 
 }  // namespace proden::protocol
