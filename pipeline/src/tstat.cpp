@@ -76,8 +76,7 @@ constexpr int kLanes = 2;
 #include "tstat_kernel.inc"
 }  // namespace portable
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define PRODEN_TTEST_X86 1
+#ifdef PRODEN_KERNEL_BUILDS_X86
 #pragma GCC push_options
 #pragma GCC target("avx2")
 namespace avx2 {
@@ -106,7 +105,7 @@ const std::vector<KernelBuild>& kernel_builds() {
   static const std::vector<KernelBuild> builds = [] {
     std::vector<KernelBuild> b;
     for (const auto& name : cpu_kernel_builds()) {
-#ifdef PRODEN_TTEST_X86
+#ifdef PRODEN_KERNEL_BUILDS_X86
       if (name == "avx512") b.push_back({name, avx512::kLanes, avx512::lane_kernel});
       if (name == "avx2") b.push_back({name, avx2::kLanes, avx2::lane_kernel});
 #endif

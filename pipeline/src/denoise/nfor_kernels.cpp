@@ -46,8 +46,7 @@ constexpr int kRows9[] = {0, 1, 2, 3, 4, 5, 6, 7, 8};
 #include "nfor_kernel.inc"
 }  // namespace portable
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define PRODEN_NFOR_X86 1
+#ifdef PRODEN_KERNEL_BUILDS_X86
 
 #pragma GCC push_options
 #pragma GCC target("avx2,fma")
@@ -90,7 +89,7 @@ constexpr int kRows9[] = {0, 1, 2, 3, 4, 6, 8};
 
 constexpr Kernels kPortable{"baseline", 4, portable::regress, portable::normal_equations,
                             portable::weights};
-#ifdef PRODEN_NFOR_X86
+#ifdef PRODEN_KERNEL_BUILDS_X86
 constexpr Kernels kAvx2{"avx2", 8, avx2::regress, avx2::normal_equations, avx2::weights};
 constexpr Kernels kAvx512{"avx512", 16, avx512::regress, avx512::normal_equations, avx512::weights};
 #endif
@@ -107,7 +106,7 @@ const Kernels& kernels(const std::string& isa) {
   if (std::find(available.begin(), available.end(), name) == available.end()) {
     throw std::invalid_argument("nfor: kernel build '" + name + "' is not available on this CPU");
   }
-#ifdef PRODEN_NFOR_X86
+#ifdef PRODEN_KERNEL_BUILDS_X86
   if (name == "avx512") return kAvx512;
   if (name == "avx2") return kAvx2;
 #endif

@@ -94,8 +94,7 @@ inline T vfma(T a, T b, T c) {
 #include "nlmeans_kernel.inc"
 }  // namespace portable
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define PRODEN_NLMEANS_X86 1
+#ifdef PRODEN_KERNEL_BUILDS_X86
 
 #pragma GCC push_options
 #pragma GCC target("avx2,fma")
@@ -133,7 +132,7 @@ struct BuildInfo {
 };
 
 BuildInfo info(Build b) {
-#ifdef PRODEN_NLMEANS_X86
+#ifdef PRODEN_KERNEL_BUILDS_X86
   if (b == Build::avx512) return {"avx512", 16, avx512::pass};
   if (b == Build::avx2) return {"avx2", 8, avx2::pass};
 #endif

@@ -44,8 +44,7 @@ constexpr int kP1 = 8, kP2 = 5, kP3 = 3;  // 16 registers: 9-10 accumulators
 #include "conv_kernel.inc"
 }  // namespace portable
 
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define PRODEN_X86_DISPATCH 1
+#ifdef PRODEN_KERNEL_BUILDS_X86
 
 // AVX2 + FMA: 8 floats per register, 16 registers (12 accumulators, 3 weights, 1 broadcast).
 #pragma GCC push_options
@@ -149,7 +148,7 @@ const char* conv_isa() {
 
 std::vector<std::string> conv_isas_available() {
   std::vector<std::string> out = {"baseline"};
-#ifdef PRODEN_X86_DISPATCH
+#ifdef PRODEN_KERNEL_BUILDS_X86
   if (isa() == Isa::avx2 || isa() == Isa::avx512) out.emplace_back("avx2");
   if (isa() == Isa::avx512) out.emplace_back("avx512");
 #endif
@@ -159,7 +158,7 @@ std::vector<std::string> conv_isas_available() {
 void conv_forward_with(const std::string& which, const ConvLayer& layer, const Activation& in,
                        Activation& out, const Activation* residual, bool relu) {
   const Args a{&layer, &in, &out, residual, relu};
-#ifdef PRODEN_X86_DISPATCH
+#ifdef PRODEN_KERNEL_BUILDS_X86
   if (which == "avx512" && isa() == Isa::avx512) {
     avx512::run(a);
     return;
