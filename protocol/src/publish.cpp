@@ -81,7 +81,7 @@ void write_frame(const std::string& path, const PipelineResult& run, const Attri
   io::add_aovs(channels, aov_planes);
   io::WriteOptions w;
   w.half = format.half;
-  w.compression = std::string(resolve_frame_compression(format.compression, format.backlog));
+  w.compression = std::string(resolve_frame_compression(format.compression));
   w.attributes = attributes;
   if (aovs) {
     w.attributes.insert(w.attributes.end(), aovs->attributes().begin(), aovs->attributes().end());

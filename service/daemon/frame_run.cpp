@@ -304,13 +304,15 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
         {"proden:converged", rec.convergence.converged() ? "true" : "false"},
     };
     if (!rec.view_layer.empty()) extra.emplace_back("proden:view_layer", rec.view_layer);
-    const bool backlog = backlog_ && backlog_();
-    const auto outputs = FrameProcessor::publish(out, output_base(spec, frame_no).string(),
-                                                 spec.output, extra, aovs.get(), backlog);
-    if (protocol::resolve_frame_compression(spec.output.compression, backlog) !=
-        protocol::resolve_frame_compression(spec.output.compression, false)) {
+    // `auto` is resolved here, where the backlog is known (docs/api.md, output.compression).
+    protocol::OutputSpec output = spec.output;
+    output.compression =
+        protocol::resolve_frame_compression(spec.output.compression, backlog_ && backlog_());
+    if (output.compression != protocol::resolve_frame_compression(spec.output.compression)) {
       metrics_.inc("proden_publish_uncompressed_total");
     }
+    const auto outputs = FrameProcessor::publish(out, output_base(spec, frame_no).string(), output,
+                                                 extra, aovs.get());
     // Older versions stay addressable (docs/api.md, "History and older versions"): the
     // versions/ directory is made beneath the output root like output.dir itself.
     if (roots) {

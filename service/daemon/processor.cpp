@@ -73,13 +73,12 @@ std::vector<std::string> FrameProcessor::publish(const ProcessedFrame& frame,
                                                  const std::string& base,
                                                  const protocol::OutputSpec& output,
                                                  const protocol::Attributes& extra,
-                                                 const AovAccumulator* aovs, bool backlog) {
+                                                 const AovAccumulator* aovs) {
   std::vector<std::string> written;
   protocol::Attributes attributes = frame.attributes;
   attributes.insert(attributes.end(), extra.begin(), extra.end());
   protocol::FrameFormat format;
   format.compression = output.compression;
-  format.backlog = backlog;
   protocol::write_frame(base + ".exr", frame.run, attributes, format, aovs);
   written.push_back(base + ".exr");
   if (output.png) {

@@ -40,14 +40,12 @@ class FrameProcessor {
                                 const ErrorContext& error_context);
 
   // Writes <base>.exr (R,G,B + every layer as <layer>.R/G/B + the renderer AOVs, with the header
-  // fields plus `extra`, compressed as output.compression says, `auto` resolved with `backlog`:
-  // work waits for the workers) and, if output.png, <base>.png (tone-mapped result), atomically.
-  // Returns the paths written, the EXR first.
+  // fields plus `extra`, compressed as output.compression says) and, if output.png, <base>.png
+  // (tone-mapped result), atomically. Returns the paths written, the EXR first.
   static std::vector<std::string> publish(const ProcessedFrame& frame, const std::string& base,
                                           const protocol::OutputSpec& output,
                                           const protocol::Attributes& extra = {},
-                                          const AovAccumulator* aovs = nullptr,
-                                          bool backlog = false);
+                                          const AovAccumulator* aovs = nullptr);
 };
 
 // Names of layers a client may request (proden::layer_names()), and them as a list for messages.

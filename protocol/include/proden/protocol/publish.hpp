@@ -55,8 +55,8 @@ Attributes header_attributes(const FrameProvenance& frame, const PipelineResult&
 struct FrameFormat {
   bool layers = true;  // every layer of the run besides the result
   bool half = false;   // 16-bit halves instead of 32-bit floats
-  std::string compression = std::string(kDefaultFrameCompression);  // one of kFrameCompressions
-  bool backlog = false;  // work waits for the daemon's workers: `auto` writes uncompressed
+  // One of kFrameCompressions; `auto` is written as PIZ (the daemon resolves it first).
+  std::string compression = std::string(kDefaultFrameCompression);
 };
 
 // Writes `path` atomically: R,G,B = the result and, with `format.layers`, every layer of the run,
