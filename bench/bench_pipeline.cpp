@@ -17,7 +17,8 @@
 // (e.g. Cycles renders of bench/cycles_frame.py at 1920x1080): the last is the one read and
 // added timed, and the update publishes what the pipeline made of the real frame. Synthetic
 // noise compresses worse than a rendered frame: the published frame's PIZ write took 2.0 s on
-// synthetic data and 1.0 s on a Cycles cornell frame (bench/RESULTS.md).
+// synthetic data and 1.5-1.9 s on Cycles frames (bench/RESULTS.md, "A full update on real
+// frames").
 //
 // --repeat N: the estimate, each pipeline, the denoiser alone and the published frame's write run
 // N times on the same objects (warm scratch and heap, as in a daemon that keeps a frame), each
@@ -39,6 +40,8 @@
 #include <string>
 #include <thread>
 #include <vector>
+
+#include <nlohmann/json.hpp>
 
 #include "bench_common.hpp"
 #include "proden/accumulator.hpp"
@@ -332,7 +335,9 @@ int main(int argc, char** argv) {
         "I/O: read one %s pass EXR (%.1f MB) %.3f s; write result "
         "RGB %.3f s, the published frame (%d ch, %s) %.3f s\n",
         real.empty() ? "synthetic Cycles-like (float, zip, 10 ch)" : "real", s.exr_mb, s.read_s,
-        s.write_s, s.published_channels, std::string(protocol::kDefaultFrameCompression).c_str(),
+        s.write_s, s.published_channels,
+        std::string(protocol::resolve_frame_compression(protocol::kDefaultFrameCompression))
+            .c_str(),
         s.write_published_s);
     std::printf("%-22s %9s %9s\n", "stage (s)", "1 thread",
                 (std::to_string(cores) + " threads").c_str());
@@ -416,16 +421,9 @@ int main(int argc, char** argv) {
       std::perror(json_path.c_str());
       return 1;
     }
-    std::fprintf(f, "{\n \"threads\": %u,\n \"repeat\": %d,\n \"frame\": [", cores, repeat);
-    for (std::size_t k = 0; k < real.size(); ++k) {  // the real frame's passes; [] = synthetic
-      std::string q;
-      for (const char ch : real[k]) {
-        if (ch == '"' || ch == '\\') q += '\\';
-        q += ch;
-      }
-      std::fprintf(f, "%s\"%s\"", k ? ", " : "", q.c_str());
-    }
-    std::fprintf(f, "],\n \"sizes\": [\n");
+    // "frame": the real frame's passes ([] = synthetic).
+    std::fprintf(f, "{\n \"threads\": %u,\n \"repeat\": %d,\n \"frame\": %s,\n \"sizes\": [\n",
+                 cores, repeat, nlohmann::json(real).dump().c_str());
     for (std::size_t i = 0; i < results.size(); ++i) {
       const SizeResult& s = results[i];
       std::fprintf(
