@@ -203,4 +203,79 @@ void add_aovs(std::vector<NamedChannel>& out, const std::vector<AovChannel>& aov
   for (const auto& a : aovs) out.push_back({a.name, a.plane.data()});
 }
 
+bool compress_image_at(int dir_fd, const std::string& name, const std::string& compression,
+                       const std::string& display_name) {
+  const std::string& display = display_name.empty() ? name : display_name;
+  if (name.empty() || name.find('/') != std::string::npos || name == "." || name == "..") {
+    throw std::runtime_error(display + ": not a file name");
+  }
+  const int fd = ::openat(dir_fd, name.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) throw std::runtime_error(display + ": cannot open: " + std::strerror(errno));
+  struct Closer {
+    int fd;
+    ~Closer() { ::close(fd); }
+  } closer{fd};
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+    throw std::runtime_error(display + ": not a regular file");
+  }
+  // The descriptor just opened, by its /proc name: nothing is looked up by path again.
+  auto in = OIIO::ImageInput::create("openexr");
+  OIIO::ImageSpec spec;
+  if (!in || !in->open("/proc/self/fd/" + std::to_string(fd), spec)) return false;  // not EXR
+  const OIIO::TypeDesc type = spec.format;
+  const bool one_type = spec.channelformats.empty() &&
+                        (type == OIIO::TypeDesc::FLOAT || type == OIIO::TypeDesc::HALF);
+  const bool plain = spec.tile_width == 0 && !spec.deep && spec.depth == 1 && spec.x == 0 &&
+                     spec.y == 0 && spec.z == 0 && spec.full_x == 0 && spec.full_y == 0 &&
+                     spec.full_width == spec.width && spec.full_height == spec.height &&
+                     spec.width > 0 && spec.height > 0 && spec.nchannels > 0;
+  const std::uint64_t pixel_bytes = static_cast<std::uint64_t>(spec.width) *
+                                    static_cast<std::uint64_t>(spec.height) *
+                                    static_cast<std::uint64_t>(spec.nchannels) * type.size();
+  if (spec.get_string_attribute("compression") != "none" || !one_type || !plain ||
+      in->seek_subimage(1, 0) || pixel_bytes > static_cast<std::uint64_t>(st.st_size)) {
+    return false;
+  }
+  if (!in->seek_subimage(0, 0)) throw std::runtime_error(display + ": " + in->geterror());
+  WriteOptions options;
+  options.half = type == OIIO::TypeDesc::HALF;
+  options.compression = compression;
+  for (const OIIO::ParamValue& p : spec.extra_attribs) {
+    const std::string key = p.name().string();
+    if (p.type() != OIIO::TypeDesc::STRING || key == "compression" || key.starts_with("oiio:") ||
+        key.starts_with("openexr:")) {
+      continue;
+    }
+    options.attributes.emplace_back(key, p.get_string());
+  }
+  // Planes from strips of interleaved rows (the file's own chunks: 1 row each, uncompressed).
+  const std::size_t w = static_cast<std::size_t>(spec.width), n = w * spec.height;
+  const std::size_t nch = static_cast<std::size_t>(spec.nchannels);
+  std::vector<float> planes(n * nch);
+  const int rows = std::max(1, static_cast<int>(options.strip_bytes / (w * nch * sizeof(float))));
+  std::vector<float> strip(static_cast<std::size_t>(std::min(rows, spec.height)) * w * nch);
+  for (int y0 = 0; y0 < spec.height; y0 += rows) {
+    const int y1 = std::min(y0 + rows, spec.height);
+    if (!in->read_scanlines(0, 0, y0, y1, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT,
+                            strip.data())) {
+      throw std::runtime_error(display + ": read failed: " + in->geterror());
+    }
+    tbb::parallel_for(y0, y1, [&](int y) {
+      const float* px = strip.data() + static_cast<std::size_t>(y - y0) * w * nch;
+      const std::size_t first = static_cast<std::size_t>(y) * w;
+      for (std::size_t p = 0; p < w; ++p, px += nch) {
+        for (std::size_t c = 0; c < nch; ++c) planes[c * n + first + p] = px[c];
+      }
+    });
+  }
+  in->close();
+  std::vector<NamedChannel> channels;
+  for (std::size_t c = 0; c < nch; ++c) {
+    channels.push_back({spec.channelnames[c], std::span<const float>(planes).subspan(c * n, n)});
+  }
+  write_image_at(dir_fd, name, spec.width, spec.height, channels, options, display);
+  return true;
+}
+
 }  // namespace proden::io

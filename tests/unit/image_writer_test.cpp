@@ -1,12 +1,14 @@
 // Atomic image writes relative to a held directory descriptor (io/image_writer.hpp): the file
 // lands in the directory that was opened, a symlink planted at its name is replaced rather than
 // written through, and OIIO writes only through the descriptor.
+#include <OpenImageIO/imageio.h>
 #include <fcntl.h>
 #include <unistd.h>
 #include <catch2/catch.hpp>
 
 #include <filesystem>
 #include <fstream>
+#include <map>
 
 #include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
@@ -146,4 +148,108 @@ TEST_CASE("strips of any height write the planes exactly", "[io][writer]") {
       }
     }
   }
+}
+
+namespace {
+
+// Every channel of an EXR as planes, its channel names, compression and string attributes.
+struct ExrContents {
+  std::vector<std::string> names;
+  std::vector<std::vector<float>> planes;
+  std::string compression;
+  OIIO::TypeDesc format;
+  std::map<std::string, std::string> strings;
+};
+
+ExrContents contents(const fs::path& f) {
+  auto in = OIIO::ImageInput::open(f.string());
+  REQUIRE(in);
+  const OIIO::ImageSpec& spec = in->spec();
+  ExrContents c;
+  c.names = spec.channelnames;
+  c.compression = spec.get_string_attribute("compression");
+  c.format = spec.format;
+  for (const auto& p : spec.extra_attribs) {
+    if (p.type() == OIIO::TypeDesc::STRING && p.name() != "compression") {
+      c.strings[p.name().string()] = p.get_string();
+    }
+  }
+  const std::size_t n = static_cast<std::size_t>(spec.width) * spec.height;
+  for (int ch = 0; ch < spec.nchannels; ++ch) {
+    std::vector<float> plane(n);
+    REQUIRE(in->read_image(0, 0, ch, ch + 1, OIIO::TypeDesc::FLOAT, plane.data()));
+    c.planes.push_back(std::move(plane));
+  }
+  return c;
+}
+
+}  // namespace
+
+TEST_CASE("compress_image_at rewrites an uncompressed EXR compressed, with the same contents",
+          "[io][writer]") {
+  test::TempDir dir;
+  const Pass p = test::make_pass(41, 67, 4, 7, Layout{true, true, false, false});
+  std::vector<io::NamedChannel> ch;
+  io::add_layer(ch, "", p.colour);
+  io::add_layer(ch, "albedo.", p.albedo);
+  io::add_layer(ch, "normal.", p.normal);
+  const int fd = ::open(dir.path().c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  REQUIRE(fd >= 0);
+  for (const bool half : {false, true}) {
+    INFO((half ? "half" : "float"));
+    io::WriteOptions o;
+    o.compression = "none";
+    o.half = half;
+    o.attributes = {{"proden:version", "7"},
+                    {"proden:estimated_error", R"({"mse":1e-3})"},
+                    {"cryptomatte/abc/manifest", R"({"a":"3f800000"})"}};
+    io::write_image_at(fd, "f.exr", 41, 67, ch, o);
+    const ExrContents before = contents(dir.path() / "f.exr");
+    REQUIRE(before.compression == "none");
+    CHECK(io::compress_image_at(fd, "f.exr", "piz"));
+    const ExrContents after = contents(dir.path() / "f.exr");
+    CHECK(after.compression == "piz");
+    CHECK(after.format == before.format);
+    CHECK(after.names == before.names);
+    CHECK(after.strings == before.strings);
+    CHECK(after.strings.at("proden:version") == "7");
+    CHECK(after.planes == before.planes);  // bit for bit
+    // Compressed already: nothing to do, the file untouched.
+    const std::string bytes = slurp(dir.path() / "f.exr");
+    CHECK_FALSE(io::compress_image_at(fd, "f.exr", "piz"));
+    CHECK(slurp(dir.path() / "f.exr") == bytes);
+  }
+  ::close(fd);
+  for (const auto& e : fs::directory_iterator(dir.path())) {
+    CHECK(e.path().filename().string().front() != '.');  // no temp file left
+  }
+}
+
+TEST_CASE("compress_image_at leaves alone what is not a whole uncompressed EXR", "[io][writer]") {
+  test::TempDir dir;
+  const Image img(16, 16, 3, 0.5f);
+  io::WriteOptions none;
+  none.compression = "none";
+  const int fd = ::open(dir.path().c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  REQUIRE(fd >= 0);
+  io::write_image_at(fd, "whole.exr", 16, 16, rgb(img), none);
+  // Cut short (a half-written or crafted file: its header claims more pixels than it holds).
+  fs::copy_file(dir.path() / "whole.exr", dir.path() / "cut.exr");
+  fs::resize_file(dir.path() / "cut.exr", fs::file_size(dir.path() / "whole.exr") / 2);
+  const std::string cut = slurp(dir.path() / "cut.exr");
+  CHECK_FALSE(io::compress_image_at(fd, "cut.exr", "piz"));
+  CHECK(slurp(dir.path() / "cut.exr") == cut);
+  // Not an EXR at all.
+  std::ofstream(dir.path() / "text.exr") << "not an image";
+  CHECK_FALSE(io::compress_image_at(fd, "text.exr", "piz"));
+  CHECK(slurp(dir.path() / "text.exr") == "not an image");
+  // A symlink at the name is not followed.
+  fs::create_symlink(dir.path() / "whole.exr", dir.path() / "link.exr");
+  CHECK_THROWS_WITH(io::compress_image_at(fd, "link.exr", "piz", "out/link.exr"),
+                    Catch::Matchers::Contains("out/link.exr"));
+  CHECK(contents(dir.path() / "whole.exr").compression == "none");
+  CHECK_THROWS_WITH(io::compress_image_at(fd, "absent.exr", "piz"),
+                    Catch::Matchers::Contains("absent.exr"));
+  CHECK_THROWS(io::compress_image_at(fd, "../whole.exr", "piz"));
+  ::close(fd);
 }

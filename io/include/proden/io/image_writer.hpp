@@ -42,6 +42,17 @@ void write_image_at(int dir_fd, const std::string& name, int width, int height,
                     std::span<const NamedChannel> channels, const WriteOptions& options = {},
                     const std::string& display = {});
 
+// Rewrites the uncompressed EXR `name` in the directory open at `dir_fd` with `compression`: the
+// same channels, pixel type, size and string header fields, atomically (write_image_at). The
+// daemon publishes a version uncompressed and compresses it once it is idle (docs/api.md,
+// output.compression `auto`). Returns false and touches nothing when the file is not an
+// uncompressed EXR of one pixel type (compressed already, or not proden's); since an uncompressed
+// file holds every pixel byte, what it allocates is bounded by the file's size. Never follows a
+// symlink at `name`. Throws std::runtime_error naming `display` on a read or write failure, the
+// file left as it was.
+bool compress_image_at(int dir_fd, const std::string& name, const std::string& compression,
+                       const std::string& display = {});
+
 // While alive, write_image() calls on this thread for files directly in `dir` go through the
 // directory descriptor `dir_fd` (write_image_at) instead of opening `dir` by path: a caller that
 // opened its output directory safely (the daemon, beneath an allowed root) binds it around code
