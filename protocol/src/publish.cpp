@@ -55,13 +55,13 @@ std::string frame_compressions() {
   return s;
 }
 
-std::string_view resolve_frame_compression(std::string_view name, bool backlog) {
+std::string_view resolve_frame_compression(std::string_view name) {
   if (!is_frame_compression(name)) {
     throw std::invalid_argument("compression '" + std::string(name) + "' is not one of " +
                                 frame_compressions());
   }
   if (name != "auto") return name;
-  return backlog ? "none" : "piz";
+  return "piz";
 }
 
 void write_frame(const std::string& path, const PipelineResult& run, const Attributes& attributes,

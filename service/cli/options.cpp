@@ -80,7 +80,9 @@ void DenoiseCommand::add_to(CLI::App& app) {
   d.add_flag("--half", den.half, "Write 16-bit half floats instead of 32-bit");
   d.add_option("--compression", den.compression,
                "OpenEXR compression: " + protocol::frame_compressions() +
-                   " (the job's output.compression; auto is piz here, where no frame waits)")
+                   " (the job's output.compression; auto is piz here: the daemon publishes it "
+                   "uncompressed and "
+                   "compresses it when idle)")
       ->check([](const std::string& c) {
         return protocol::is_frame_compression(c) ? std::string()
                                                  : "one of " + protocol::frame_compressions();

@@ -15,6 +15,7 @@
 #include "daemon/request_parse.hpp"
 #include "daemon/versions.hpp"
 #include "proden/hash.hpp"
+#include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
 
 namespace proden::daemon {
@@ -80,8 +81,14 @@ Engine::Engine(const Config& config, const Roots& roots, Metrics& metrics, Event
   // Runs' temporaries (decoded passes, the estimate, the pipeline's planes) are freed into the
   // heap, where the next run reuses their pages while the farm keeps the daemon busy; once it has
   // been idle for a second they go back to the system, so an idle daemon's resident memory
-  // follows what it holds (daemon/memory.hpp).
-  scheduler_->on_idle([] { release_free_memory(); }, std::chrono::seconds(1));
+  // follows what it holds (daemon/memory.hpp). First, versions published uncompressed are
+  // compressed (output.compression auto), one file per idle second.
+  scheduler_->on_idle(
+      [this] {
+        compress_idle();
+        release_free_memory();
+      },
+      std::chrono::seconds(1));
 }
 
 Engine::~Engine() {
@@ -143,6 +150,13 @@ void Engine::load_job(const fs::path& dir) {
     fr.rec = std::move(lf.record);
     fr.has_state = true;
     fr.published_version = lf.published_version;
+    // Kept versions an earlier process may have left uncompressed (killed before it was idle):
+    // compress_idle checks each file and rewrites only uncompressed ones.
+    if (job->spec.output.compression == "auto") {
+      for (const auto v : fr.rec.versions) {
+        if (v <= fr.published_version) fr.to_compress.insert(v);
+      }
+    }
   }
   const std::string id = job->spec.id;
   for (const auto& [frame, msg] : damaged) on_damaged(id, frame, msg);
@@ -281,7 +295,6 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
   }
   in.roots = &roots_;
   in.limits = read_limits(config_.input, config_.input.max_file_bytes);
-  in.backlog = [this, job_id, frame_no] { return scheduler_->backlog(job_id, frame_no); };
   const std::vector<PendingPass> batch = in.batch;
 
   FrameRun::Hooks hooks;
@@ -298,11 +311,13 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
       fr.inflight.erase(a.pass);
     }
   };
-  hooks.published = [&](std::uint64_t version, const std::vector<std::string>& outputs) {
+  hooks.published = [&](std::uint64_t version, const std::vector<std::string>& outputs,
+                        bool compress_later) {
     std::lock_guard lock(mu_);
     Frame& fr = job->frames[frame_no];
     fr.published_version = version;
     fr.outputs = outputs;
+    if (compress_later) fr.to_compress.insert(version);
   };
   hooks.recovered = [&](const FrameRecord& good) {
     // Passes after the last good state: watched files are offered again by the watcher (they
@@ -385,6 +400,89 @@ void Engine::run_frame(const std::string& job_id, long frame_no) {
   }
   if (!fr.pending.empty()) enqueue(*job, frame_no);
   evict();
+}
+
+void Engine::compress_idle() {
+  for (;;) {
+    std::string job_id;
+    long frame_no = 0;
+    std::uint64_t version = 0;
+    protocol::JobSpec spec;
+    {
+      std::lock_guard lock(mu_);
+      for (auto& [id, job] : jobs_) {
+        if (job->deleted) continue;
+        for (auto& [no, frame] : job->frames) {
+          Frame& fr = frame;  // a name the lambda below may capture (clang 14: not a binding)
+          // Versions no longer kept (removed beyond output.history) have no file to compress.
+          std::erase_if(fr.to_compress, [&](std::uint64_t v) {
+            return v > fr.published_version ||
+                   std::find(fr.rec.versions.begin(), fr.rec.versions.end(), v) ==
+                       fr.rec.versions.end();
+          });
+          if (fr.to_compress.empty()) continue;
+          if (job_id.empty() || *fr.to_compress.rbegin() > version) {
+            job_id = id;
+            frame_no = no;
+            version = *fr.to_compress.rbegin();
+            spec = job->spec;
+          }
+        }
+      }
+    }
+    // Nothing left, or work waits (or this frame is queued): the next idle time goes on.
+    if (job_id.empty() || !scheduler_->claim(job_id, frame_no)) return;
+    // Who owns frame_no now (null: the job was deleted meanwhile); mu_ held.
+    const auto frame_of = [&]() -> Frame* {
+      const auto j = jobs_.find(job_id);
+      if (j == jobs_.end()) return nullptr;
+      const auto f = j->second->frames.find(frame_no);
+      return f == j->second->frames.end() ? nullptr : &f->second;
+    };
+    bool rewritten = false;
+    bool latest = false;
+    {
+      std::lock_guard lock(mu_);
+      const Frame* fr = frame_of();
+      latest = fr && fr->published_version == version;
+    }
+    try {
+      rewritten = compress_version(spec, frame_no, version, latest);
+      if (rewritten) metrics_.inc("proden_publish_compressed_later_total");
+    } catch (const std::exception& e) {  // the file stays as it was: uncompressed, same values
+      spdlog::warn("job {} frame {}: compressing version {}: {}", job_id, frame_no, version,
+                   e.what());
+      metrics_.inc("proden_errors_total", "compress");
+    }
+    {
+      std::lock_guard lock(mu_);
+      if (Frame* fr = frame_of()) fr->to_compress.erase(version);
+    }
+    scheduler_->release(job_id, frame_no);
+    if (rewritten) return;
+  }
+}
+
+bool Engine::compress_version(const protocol::JobSpec& spec, long frame, std::uint64_t version,
+                              bool latest) {
+  const std::string compression(protocol::resolve_frame_compression(spec.output.compression));
+  const fs::path kept = version_file(spec, frame, version);
+  FileError fe = FileError::none;
+  std::string why;
+  if (!latest) {  // an older version: its file in versions/ alone
+    const UniqueFd dir = roots_.open_dir(kept.parent_path(), fe, why);
+    if (!dir) throw std::runtime_error(why);
+    return io::compress_image_at(dir.get(), kept.filename().string(), compression, kept.string());
+  }
+  // The latest: the published file, then its kept copy made that file again (a hard link).
+  const fs::path published = output_base(spec, frame).string() + ".exr";
+  const UniqueFd dir = roots_.open_dir(published.parent_path(), fe, why);
+  if (!dir) throw std::runtime_error(why);
+  const bool rewritten = io::compress_image_at(dir.get(), published.filename().string(),
+                                               compression, published.string());
+  std::error_code ec;
+  if (!fs::equivalent(published, kept, ec)) keep_version(published, kept);
+  return rewritten;
 }
 
 void Engine::on_failed(const std::shared_ptr<Job>& job, long frame, const PendingPass& p,

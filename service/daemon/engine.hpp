@@ -119,6 +119,9 @@ class Engine {
     std::shared_ptr<FrameAccumulator> acc;  // resident state (LRU-bounded)
     std::shared_ptr<AovAccumulator> aovs;   // its renderer AOVs (resident with acc)
     std::uint64_t last_used = 0;
+    // Versions whose kept EXR may still be uncompressed (output.compression auto), compressed
+    // when the daemon is idle (compress_idle).
+    std::set<std::uint64_t> to_compress;
     bool has(const std::string& pass) const {
       return ingested.count(pass) || pending.count(pass) || retry.count(pass) ||
              inflight.count(pass);
@@ -138,6 +141,13 @@ class Engine {
   void load_state();
   void load_job(const std::filesystem::path& dir);
   void run_frame(const std::string& job_id, long frame_no);
+  // From the scheduler's idle hook: compresses kept versions that `auto` wrote uncompressed, newest
+  // first, while the scheduler stays idle: at most one file rewritten per call (the hook comes
+  // back after the next idle second), so work that lands waits for one file at most.
+  void compress_idle();
+  // Rewrites version `version` of the frame with its final compression; false if nothing was to do.
+  bool compress_version(const protocol::JobSpec& spec, long frame, std::uint64_t version,
+                        bool latest);
   void enqueue(const Job& job, long frame_no);  // mu_ held
   void retry_later(Job& job, long frame_no, Frame& fr, const PendingPass& p,
                    std::chrono::milliseconds delay);  // mu_ held

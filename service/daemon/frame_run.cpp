@@ -91,7 +91,6 @@ FrameRun::Outcome FrameRun::run(Input in) {
   FrameRecord rec = std::move(in.record);
   std::shared_ptr<FrameAccumulator> acc = std::move(in.acc);
   std::shared_ptr<AovAccumulator> aovs = std::move(in.aovs);
-  backlog_ = std::move(in.backlog);
   std::vector<PendingPass>& batch = in.batch;
   std::sort(batch.begin(), batch.end(),
             [](const PendingPass& a, const PendingPass& b) { return pass_less(a.pass, b.pass); });
@@ -304,11 +303,12 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
         {"proden:converged", rec.convergence.converged() ? "true" : "false"},
     };
     if (!rec.view_layer.empty()) extra.emplace_back("proden:view_layer", rec.view_layer);
-    // `auto` is resolved here, where the backlog is known (docs/api.md, output.compression).
+    // `auto`: uncompressed now, so the version is out sooner; the engine compresses the file
+    // once it is idle (docs/api.md, output.compression).
     protocol::OutputSpec output = spec.output;
-    output.compression =
-        protocol::resolve_frame_compression(spec.output.compression, backlog_ && backlog_());
-    if (output.compression != protocol::resolve_frame_compression(spec.output.compression)) {
+    const bool compress_later = spec.output.compression == "auto";
+    if (compress_later) {
+      output.compression = "none";
       metrics_.inc("proden_publish_uncompressed_total");
     }
     const auto outputs = FrameProcessor::publish(out, output_base(spec, frame_no).string(), output,
@@ -341,7 +341,7 @@ FrameRun::Outcome FrameRun::commit_and_publish(const protocol::JobSpec& spec, lo
     }
     store_.save_published(job_id, frame_no, rec.version);
     metrics_.observe("proden_stage_duration_seconds", "publish", seconds_since(t0));
-    hooks_.published(rec.version, outputs);
+    hooks_.published(rec.version, outputs, compress_later);
     metrics_.inc("proden_frame_updates_total");
     json data = entry;
     data.update({{"job", job_id},

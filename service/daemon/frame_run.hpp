@@ -49,8 +49,11 @@ class FrameRun {
     std::function<void(const FrameRecord& record,
                        const std::vector<protocol::PassIdentity>& accepted)>
         committed;
-    // Version `version` is published as `outputs`.
-    std::function<void(std::uint64_t version, const std::vector<std::string>& outputs)> published;
+    // Version `version` is published as `outputs`; `compress_later`: its EXR was written
+    // uncompressed for output.compression `auto`, to be compressed when the daemon is idle.
+    std::function<void(std::uint64_t version, const std::vector<std::string>& outputs,
+                       bool compress_later)>
+        published;
     // The persisted state was damaged and `record` (the last good state) replaced it: passes
     // that are not in it must be read again.
     std::function<void(const FrameRecord& record)> recovered;
@@ -70,9 +73,6 @@ class FrameRun {
     // for tests of runs that read only stored uploads); reads are bounded by `limits`.
     const Roots* roots = nullptr;
     io::ReadLimits limits;
-    // Asked when the version is written: does work wait for the workers (Scheduler::backlog)?
-    // An `auto` output.compression then writes it uncompressed. Empty: no.
-    std::function<bool()> backlog;
   };
   enum class Result {
     done,              // ran to the end (some passes may have failed)
@@ -99,7 +99,6 @@ class FrameRun {
   Metrics& metrics_;
   EventHub& events_;
   Hooks hooks_;
-  std::function<bool()> backlog_;  // Input::backlog of the run
 };
 
 }  // namespace proden::daemon

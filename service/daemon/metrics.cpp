@@ -36,8 +36,10 @@ Metrics::Metrics()
           "Resident states dropped for max_resident_frames or max_resident_bytes (reloaded from "
           "their state file at their frame's next update)");
   declare("proden_publish_uncompressed_total", "counter",
-          "Versions written uncompressed by output.compression auto while work waited for the "
-          "workers");
+          "Versions written uncompressed by output.compression auto, to be compressed when idle");
+  declare("proden_publish_compressed_later_total", "counter",
+          "Versions written uncompressed (output.compression auto) and compressed once the daemon "
+          "was idle");
   declare("proden_sse_clients", "gauge", "Connected Server-Sent Events clients");
   declare("proden_http_connections", "gauge", "Open HTTP connections");
 }

@@ -112,7 +112,9 @@ PreviewCache::File PreviewCache::get(const fs::path& cache_dir, const fs::path& 
                                      std::uint64_t version, const Request& req) {
   check_request(req.format, req.layer);
   if (req.format == "exr" && req.layer.empty()) {
-    return {exr, "image/x-exr", "\"v" + std::to_string(version) + "\"", {}};
+    // Weak: the version's values never change, but its bytes do once the daemon compresses a
+    // version published uncompressed (docs/api.md, output.compression auto).
+    return {exr, "image/x-exr", "W/\"v" + std::to_string(version) + "\"", {}};
   }
   const std::string l = req.layer.empty() ? "result" : req.layer;
   const bool png = req.format == "png";

@@ -136,17 +136,6 @@ bool Scheduler::busy(const std::string& job, long frame) const {
   return st.queued || st.running || st.again || st.delayed;
 }
 
-bool Scheduler::backlog(const std::string& job, long frame) const {
-  std::lock_guard lock(mu_);
-  const auto it = frames_.find({job, frame});
-  if (it != frames_.end() && it->second.running && it->second.again &&
-      it->second.again_due <= clock_.now()) {
-    return true;
-  }
-  return std::any_of(jobs_.begin(), jobs_.end(),
-                     [](const auto& j) { return !j.second.paused && !j.second.ready.empty(); });
-}
-
 std::size_t Scheduler::queued() const {
   std::lock_guard lock(mu_);
   std::size_t n = 0;
@@ -179,6 +168,59 @@ void Scheduler::update_gauges() {
   for (const auto& [id, q] : jobs_) queued += q.ready.size();
   metrics_->set("proden_queue_depth", static_cast<double>(queued));
   metrics_->set("proden_frames_in_progress", running_);
+}
+
+void Scheduler::finish_locked(const std::string& job, long frame, bool crashed) {
+  --running_;
+  const Key key{job, frame};
+  auto it = frames_.find(key);
+  if (it != frames_.end()) {
+    FrameState& st = it->second;
+    st.running = false;
+    if (crashed) {
+      const int n = std::min(++st.crashes, 9);  // 1 s, 2 s, ... 256 s
+      const TimePoint due = clock_.now() + std::chrono::seconds(1 << (n - 1));
+      st.again_due = st.again ? std::min(st.again_due, due) : due;
+      st.again = true;
+    } else {
+      st.crashes = 0;
+    }
+    if (st.again && jobs_.count(job)) {
+      st.again = false;
+      if (st.again_due <= clock_.now()) {
+        push(job, frame, st);
+      } else {
+        schedule(key, st, st.again_due);
+      }
+    } else if (!st.queued && !st.delayed && st.crashes == 0) {
+      frames_.erase(it);
+    }
+  }
+  update_gauges();
+  // Idle now: the hook is due after the delay, on whichever worker waits then (this one,
+  // next time round the loop, without a delay).
+  if (on_idle_ && idle_locked()) idle_due_ = clock_.now() + idle_delay_;
+}
+
+bool Scheduler::claim(const std::string& job, long frame) {
+  std::lock_guard lock(mu_);
+  if (stopping_ || !idle_locked()) return false;
+  const auto it = frames_.find({job, frame});
+  if (it != frames_.end() && (it->second.queued || it->second.delayed)) return false;
+  jobs_[job];  // known, so that a run asked for meanwhile is queued at release
+  FrameState& st = frames_[{job, frame}];
+  st.running = true;
+  ++running_;
+  update_gauges();
+  return true;
+}
+
+void Scheduler::release(const std::string& job, long frame) {
+  {
+    std::lock_guard lock(mu_);
+    finish_locked(job, frame, false);
+  }
+  idle_cv_.notify_all();
 }
 
 void Scheduler::worker() {
@@ -251,35 +293,7 @@ void Scheduler::worker() {
     }
     {
       std::lock_guard lock(mu_);
-      --running_;
-      const Key key{job, frame};
-      auto it = frames_.find(key);
-      if (it != frames_.end()) {
-        FrameState& st = it->second;
-        st.running = false;
-        if (crashed) {
-          const int n = std::min(++st.crashes, 9);  // 1 s, 2 s, ... 256 s
-          const TimePoint due = clock_.now() + std::chrono::seconds(1 << (n - 1));
-          st.again_due = st.again ? std::min(st.again_due, due) : due;
-          st.again = true;
-        } else {
-          st.crashes = 0;
-        }
-        if (st.again && jobs_.count(job)) {
-          st.again = false;
-          if (st.again_due <= clock_.now()) {
-            push(job, frame, st);
-          } else {
-            schedule(key, st, st.again_due);
-          }
-        } else if (!st.queued && !st.delayed && st.crashes == 0) {
-          frames_.erase(it);
-        }
-      }
-      update_gauges();
-      // Idle now: the hook is due after the delay, on whichever worker waits then (this one,
-      // next time round the loop, without a delay).
-      if (on_idle_ && idle_locked()) idle_due_ = clock_.now() + idle_delay_;
+      finish_locked(job, frame, crashed);
     }
     idle_cv_.notify_all();
   }

@@ -57,10 +57,13 @@ class Scheduler {
   void remove_job(const std::string& job);  // drops its queued frames (running ones finish)
 
   bool busy(const std::string& job, long frame) const;  // queued (now or later) or running
-  // Work waits that the workers are not doing: a frame of an active (unpaused) job is ready, or
-  // (job, frame), while it runs, has been asked for again with no delay (a pass arrived during
-  // the run). The daemon then publishes uncompressed (output.compression auto).
-  bool backlog(const std::string& job, long frame) const;
+  // Housekeeping on (job, frame) done by the caller as if it were a run of the frame, only while
+  // the scheduler is idle (the wait_idle condition) and the frame is neither queued nor waiting
+  // for its time: true if taken, and then nothing runs the frame until release(). Work that
+  // arrives meanwhile runs on the other workers; the frame's own runs after release(). The daemon
+  // compresses its published images this way from the idle hook (docs/api.md, output.compression).
+  bool claim(const std::string& job, long frame);
+  void release(const std::string& job, long frame);
   std::size_t queued() const;
   int running() const;
   // Blocks until nothing runs and no frame of an active job is ready (frames waiting for a
@@ -83,10 +86,11 @@ class Scheduler {
     bool paused = false;
   };
   void worker();
-  void push(const std::string& job, long frame, FrameState& st);  // mu_ held
-  void schedule(const Key& key, FrameState& st, TimePoint due);   // mu_ held
-  void promote_due();                                             // mu_ held
-  void update_gauges();                                           // mu_ held
+  void finish_locked(const std::string& job, long frame, bool crashed);  // a run ended; mu_ held
+  void push(const std::string& job, long frame, FrameState& st);         // mu_ held
+  void schedule(const Key& key, FrameState& st, TimePoint due);          // mu_ held
+  void promote_due();                                                    // mu_ held
+  void update_gauges();                                                  // mu_ held
   bool idle_locked() const;  // the wait_idle condition; mu_ held
 
   int workers_count_;

@@ -1,10 +1,14 @@
 // Engine: the front in process: jobs, uploads through to published frames, restart.
 #include <catch2/catch.hpp>
 
+#include <OpenImageIO/imageio.h>
+
 #include <fstream>
+#include <thread>
 
 #include "daemon/engine.hpp"
 #include "daemon/memory.hpp"
+#include "daemon/versions.hpp"
 #include "daemon_support.hpp"
 
 namespace fs = std::filesystem;
@@ -136,4 +140,86 @@ TEST_CASE("Engine: resident states are bounded by count and by bytes, least rece
     update(1, 14);
     CHECK(loads() == before + 3);
   }
+}
+
+TEST_CASE("Engine: versions published uncompressed (auto) are compressed once it is idle",
+          "[daemon][engine]") {
+  // The file's compression and every channel's values, as OpenEXR stored them.
+  struct Exr {
+    std::string compression;
+    std::vector<float> values;
+  };
+  const auto read = [](const fs::path& f) {
+    auto in = OIIO::ImageInput::open(f.string());
+    REQUIRE(in);
+    Exr e;
+    e.compression = in->spec().get_string_attribute("compression");
+    e.values.resize(in->spec().image_pixels() * in->spec().nchannels);
+    REQUIRE(in->read_image(0, 0, 0, in->spec().nchannels, OIIO::TypeDesc::FLOAT, e.values.data()));
+    return e;
+  };
+  EngineRig rig;
+  const auto job = rig.create("c");
+  REQUIRE(job.output.compression == "auto");
+  const fs::path exr = output_base(job, 1).string() + ".exr";
+  const auto version = [&](std::uint64_t v) { return version_file(job, 1, v); };
+  const auto compression = [&](const fs::path& f) { return read(f).compression; };
+  rig.engine->upload(job.id, "1", "a", rig.pass_bytes(1));
+  REQUIRE(rig.engine->wait_idle(20000));
+  const Exr v1 = read(exr);
+  CHECK(v1.compression == "none");
+  rig.engine->upload(job.id, "1", "b", rig.pass_bytes(2));
+  REQUIRE(rig.engine->wait_idle(20000));
+  const Exr v2 = read(exr);
+  CHECK(v2.compression == "none");
+  CHECK(compression(version(1)) == "none");
+  CHECK(rig.metric("proden_publish_compressed_later_total") == 0);
+  // Idle for a second (the scheduler's clock): the newest version first, one file per idle time.
+  rig.clock.advance(std::chrono::milliseconds(1100));
+  REQUIRE(test::eventually([&] { return compression(exr) == "piz"; }));
+  CHECK(read(exr).values == v2.values);
+  CHECK(fs::equivalent(exr, version(2)));  // the kept copy is the compressed file too
+  REQUIRE(rig.engine->wait_idle(20000));
+  CHECK(compression(version(1)) == "none");
+  rig.clock.advance(std::chrono::milliseconds(1100));
+  REQUIRE(test::eventually([&] { return compression(version(1)) == "piz"; }));
+  CHECK(read(version(1)).values == v1.values);
+  REQUIRE(
+      test::eventually([&] { return rig.metric("proden_publish_compressed_later_total") == 2; }));
+  // A version left uncompressed by a process that stopped before it was idle: the next one
+  // compresses it.
+  rig.engine->upload(job.id, "1", "c", rig.pass_bytes(3));
+  REQUIRE(rig.engine->wait_idle(20000));
+  CHECK(compression(exr) == "none");
+  rig.restart();
+  CHECK(compression(exr) == "none");
+  rig.clock.advance(std::chrono::milliseconds(1100));
+  // The restarted scheduler has run nothing yet: its idle hook comes once a run has ended.
+  rig.engine->upload(job.id, "2", "a", rig.pass_bytes(4));
+  REQUIRE(rig.engine->wait_idle(20000));
+  rig.clock.advance(std::chrono::milliseconds(1100));
+  REQUIRE(test::eventually([&] {
+    rig.clock.advance(std::chrono::milliseconds(1100));
+    return compression(exr) == "piz" && compression(output_base(job, 2).string() + ".exr") == "piz";
+  }));
+  CHECK(fs::equivalent(exr, version(3)));
+  CHECK(compression(version(2)) == "piz");
+  // A job that asked for `none` keeps it.
+  const auto plain = [&] {
+    protocol::JobSpec s;
+    s.name = "n";
+    s.output.dir = (rig.allowed() / "n_out").string();
+    s.output.compression = "none";
+    s.pipeline = protocol::PipelineSpec::from_json({{"denoiser", "none"}});
+    s.spp = 4.0;
+    return rig.engine->create_job(s);
+  }();
+  rig.engine->upload(plain.id, "1", "a", rig.pass_bytes(5));
+  REQUIRE(rig.engine->wait_idle(20000));
+  for (int i = 0; i < 5; ++i) {
+    rig.clock.advance(std::chrono::milliseconds(1100));
+    std::this_thread::sleep_for(std::chrono::milliseconds(150));
+  }
+  REQUIRE(rig.engine->wait_idle(20000));
+  CHECK(compression(output_base(plain, 1).string() + ".exr") == "none");
 }

@@ -8,6 +8,7 @@
 #include "daemon/files.hpp"
 #include "daemon/frame_history.hpp"
 #include "daemon/frame_run.hpp"
+#include "daemon/versions.hpp"
 #include "daemon_support.hpp"
 
 namespace fs = std::filesystem;
@@ -30,11 +31,10 @@ struct Rig {
   std::vector<std::pair<PendingPass, Failure>> failed;
   std::vector<FrameRecord> committed;
   std::vector<std::uint64_t> published;
+  std::vector<bool> compress_later;  // Hooks::published's flag, per version
   std::function<void(const FrameRecord&)> on_recovered = [](const FrameRecord&) {};
 
   Rig() { store.create_job(spec); }
-
-  std::function<bool()> backlog;  // FrameRun::Input::backlog
 
   FrameRun::Outcome run(std::vector<PendingPass> batch, FrameRecord rec = {},
                         bool has_state = false, bool republish = false,
@@ -44,8 +44,9 @@ struct Rig {
     h.committed = [this](const FrameRecord& r, const std::vector<protocol::PassIdentity>&) {
       committed.push_back(r);
     };
-    h.published = [this](std::uint64_t v, const std::vector<std::string>&) {
+    h.published = [this](std::uint64_t v, const std::vector<std::string>&, bool later) {
       published.push_back(v);
+      compress_later.push_back(later);
     };
     h.recovered = [this](const FrameRecord& g) { on_recovered(g); };
     FrameRun fr(store, metrics, hub, h);
@@ -57,7 +58,6 @@ struct Rig {
     in.republish = republish;
     in.acc = std::move(acc);
     in.batch = std::move(batch);
-    in.backlog = backlog;
     return fr.run(std::move(in));
   }
   fs::path watched(const std::string& pass) const { return t.path() / "w" / (pass + ".exr"); }
@@ -268,7 +268,7 @@ TEST_CASE("FrameRun: a version is in the history before it is recorded as publis
   CHECK(frames[0].data["version"] == 1);
 }
 
-TEST_CASE("FrameRun: output.compression auto writes uncompressed only while frames wait",
+TEST_CASE("FrameRun: output.compression auto writes uncompressed and asks for compression later",
           "[daemon][frame_run]") {
   // The published EXR's compression, as OpenEXR stored it.
   const auto compression_of = [](const std::string& exr) {
@@ -276,31 +276,19 @@ TEST_CASE("FrameRun: output.compression auto writes uncompressed only while fram
     REQUIRE(in);
     return in->spec().get_string_attribute("compression");
   };
-  const auto uncompressed = [](Rig& r) {
+  for (const std::string c : {"auto", "piz", "zip", "none"}) {
+    CAPTURE(c);
+    Rig r;
+    r.spec.output.compression = c;
+    const auto p = test::write_pass(r.watched("1"), "1", 1);
+    REQUIRE(r.run({p}).result == FrameRun::Result::done);
+    const std::string exr = output_base(r.spec, 1).string() + ".exr";
+    CHECK(compression_of(exr) == (c == "auto" ? "none" : c));
+    // The version's kept copy is the same file.
+    CHECK(fs::equivalent(exr, version_file(r.spec, 1, 1)));
+    REQUIRE(r.compress_later.size() == 1);
+    CHECK(r.compress_later[0] == (c == "auto"));
     const std::string text = r.metrics.render();
-    return text.find("proden_publish_uncompressed_total 1") != std::string::npos;
-  };
-  for (const bool waiting : {false, true}) {
-    for (const std::string c : {"auto", "piz", "zip"}) {
-      CAPTURE(waiting, c);
-      Rig r;
-      r.spec.output.compression = c;
-      int asked = 0;
-      r.backlog = [&] {
-        ++asked;
-        return waiting;
-      };
-      const auto p = test::write_pass(r.watched("1"), "1", 1);
-      REQUIRE(r.run({p}).result == FrameRun::Result::done);
-      CHECK(asked == 1);  // asked once, when the version is written
-      const std::string want = c == "auto" ? (waiting ? "none" : "piz") : c;
-      CHECK(compression_of(output_base(r.spec, 1).string() + ".exr") == want);
-      CHECK(uncompressed(r) == (c == "auto" && waiting));
-    }
+    CHECK((text.find("proden_publish_uncompressed_total 1") != std::string::npos) == (c == "auto"));
   }
-  // No backlog function (a run outside the engine): as if no frame waited.
-  Rig r;
-  const auto p = test::write_pass(r.watched("1"), "1", 1);
-  REQUIRE(r.run({p}).result == FrameRun::Result::done);
-  CHECK(compression_of(output_base(r.spec, 1).string() + ".exr") == "piz");
 }

@@ -108,7 +108,7 @@ TEST_CASE("Regression 9: a pass with an absurd spp never poisons the frame's sta
   FrameRun::Hooks h;
   h.failed = [&](const PendingPass&, const Failure& f) { failed.push_back(f); };
   h.committed = [&](const FrameRecord& r, const auto&) { committed.push_back(r); };
-  h.published = [](std::uint64_t, const auto&) {};
+  h.published = [](std::uint64_t, const auto&, bool) {};
   FrameRun run(store, metrics, hub, h);
   FrameRun::Input in;
   in.spec = spec;

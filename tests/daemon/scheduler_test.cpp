@@ -287,29 +287,39 @@ TEST_CASE("Scheduler: a frame queued for later runs when its time comes", "[daem
   REQUIRE(proden::test::eventually([&] { return log.get().size() == 3; }));
 }
 
-TEST_CASE("Scheduler: backlog is a ready frame of an active job, or new work for the running one",
+TEST_CASE("Scheduler: claim takes a frame for housekeeping only while idle, and excludes its runs",
           "[daemon][scheduler]") {
   Gate gate;
-  std::atomic<int> runs{0};
-  Scheduler s(1, [&](const std::string&, long) {
-    if (runs++ == 0) gate.wait();
+  Log log;
+  Scheduler s(2, [&](const std::string& j, long f) {
+    if (j == "gated") gate.wait();
+    log.add(j, f);
   });
-  s.set_paused("p", true);
-  s.enqueue("p", 1);  // ready, but its job is paused: no backlog
   s.start();
-  s.enqueue("a", 1);
-  gate.wait_for_waiter();  // a1 runs on the only worker
-  CHECK_FALSE(s.backlog("a", 1));
-  s.enqueue("a", 1, std::chrono::milliseconds(60000));  // asked again, but not before a minute
-  CHECK_FALSE(s.backlog("a", 1));
-  s.enqueue("a", 1);  // a pass arrived during the run: asked again now
-  CHECK(s.backlog("a", 1));
-  CHECK_FALSE(s.backlog("a", 2));  // another frame of the job: nothing ready
-  s.enqueue("b", 7);               // a frame of another job waits for the worker
-  CHECK(s.backlog("a", 2));
-  CHECK(s.backlog("x", 1));
+  s.enqueue("gated", 1);
+  gate.wait_for_waiter();
+  CHECK_FALSE(s.claim("a", 1));  // something runs: not idle
   gate.release();
   REQUIRE(s.wait_idle(10000));
-  CHECK_FALSE(s.backlog("a", 1));  // idle; the paused job's frame still queued
-  CHECK(s.busy("p", 1));
+  s.set_paused("p", true);
+  s.enqueue("p", 1);             // queued, but its job is paused: the scheduler is still idle
+  CHECK_FALSE(s.claim("p", 1));  // the frame itself is queued
+  REQUIRE(s.claim("a", 1));
+  CHECK(s.busy("a", 1));
+  CHECK(s.running() == 1);
+  CHECK_FALSE(s.wait_idle(50));  // the claim counts as a run
+  CHECK_FALSE(s.claim("a", 2));  // one claim at a time: not idle
+  // Work that arrives meanwhile: another frame runs on a free worker; the claimed one waits.
+  s.enqueue("b", 1);
+  s.enqueue("a", 1);
+  REQUIRE(proden::test::eventually([&] { return log.get().size() == 2; }));
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  CHECK(log.get() == std::vector<std::string>{"gated1", "b1"});
+  s.release("a", 1);
+  REQUIRE(proden::test::eventually([&] { return log.get().size() == 3; }));
+  CHECK(log.get().back() == "a1");
+  REQUIRE(s.wait_idle(10000));
+  CHECK_FALSE(s.busy("a", 1));
+  s.request_stop();
+  CHECK_FALSE(s.claim("a", 1));  // stopping: no new housekeeping
 }

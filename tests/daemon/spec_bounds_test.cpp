@@ -81,15 +81,12 @@ TEST_CASE("Job spec: output.compression is a lossless OpenEXR one, echoed back",
   CHECK_THROWS_AS(protocol::validate_job_spec(s), protocol::ApiError);
 }
 
-TEST_CASE("output.compression auto is PIZ, or none while frames wait; the others are themselves",
-          "[daemon][bounds]") {
+TEST_CASE("output.compression auto ends as PIZ; the others are themselves", "[daemon][bounds]") {
   CHECK(protocol::kDefaultFrameCompression == "auto");
   CHECK(protocol::resolve_frame_compression("auto") == "piz");
-  CHECK(protocol::resolve_frame_compression("auto", true) == "none");
   for (const auto c : protocol::kFrameCompressions) {
     if (c == "auto") continue;
-    CHECK(protocol::resolve_frame_compression(c, false) == c);
-    CHECK(protocol::resolve_frame_compression(c, true) == c);
+    CHECK(protocol::resolve_frame_compression(c) == c);
   }
   CHECK_THROWS_AS(protocol::resolve_frame_compression("dwaa"), std::invalid_argument);
 }

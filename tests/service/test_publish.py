@@ -8,10 +8,11 @@ import struct
 import subprocess
 import sys
 import tempfile
+import time
 import unittest
 
 sys.path.insert(0, os.path.dirname(__file__))
-from harness import SharedDaemonTest, BINARY, CORNELL, Daemon, TempRoot  # noqa: E402
+from harness import SharedDaemonTest, BINARY, CORNELL, Daemon, TempRoot, metric  # noqa: E402
 
 HEADER_FIELDS = ["proden:passes", "proden:spp", "proden:inputs", "proden:denoiser", "proden:mixer",
                  "proden:mixer_weights", "proden:divergence", "proden:t_test",
@@ -24,7 +25,7 @@ CV_LAYERS = ["cvsquare", "cvvariance"]
 
 
 # OpenEXR's compression attribute values (file layout spec).
-ZIP, PIZ = 3, 4
+NONE, ZIP, PIZ = 0, 3, 4
 
 
 def exr_header(data):
@@ -135,7 +136,9 @@ class PublishTest(PublishCase):
             cli_hdr = strings(cli_attrs)
             for k in HEADER_FIELDS + ["Software"]:
                 self.assertEqual(cli_hdr[k], hdr[k], k)
-            self.assertEqual(cli_attrs["compression"], attrs["compression"])
+            # auto: the CLI writes PIZ; the daemon writes none, then PIZ once it is idle.
+            self.assertEqual(cli_attrs["compression"], ("compression", bytes([PIZ])))
+            self.assertIn(attrs["compression"][1], (bytes([NONE]), bytes([PIZ])))
             self.assertEqual(sorted(channels(cli_attrs)), sorted(chans))
             self.assertEqual(summary["estimated_mse"], status["estimated_mse"])
             self.assertEqual(summary["estimated_mse_source"], status["estimated_mse_source"])
@@ -143,13 +146,33 @@ class PublishTest(PublishCase):
             self.assert_same_result(published, out)
 
     def test_output_compression(self):
-        """PIZ by default (auto, with no other frame waiting); a job's output.compression is what
-        its published EXR says, echoed in the job; a lossy or unknown one is refused naming the
-        field."""
-        jid, _, exr = self.publish("pub_piz")
-        self.assertEqual(exr_header(exr)["compression"], ("compression", bytes([PIZ])))
+        """auto (the default): the version is published uncompressed and the same file becomes
+        PIZ, with the same values, once the daemon has been idle for a second; a job's
+        output.compression is what its published EXR says, echoed in the job; a lossy or unknown
+        one is refused naming the field."""
+        jid, status, exr = self.publish("pub_auto")
+        url = "/api/v1/jobs/%s/frames/1/image?format=exr" % jid
+        self.assertEqual(exr_header(exr)["compression"], ("compression", bytes([NONE])))
         s, job = self.d.json("GET", "/api/v1/jobs/" + jid)
         self.assertEqual((s, job["output"]["compression"]), (200, "auto"))
+        deadline = time.time() + 60
+        while True:
+            s, h, later = self.d.request("GET", url)
+            self.assertEqual(s, 200)
+            if exr_header(later)["compression"][1] == bytes([PIZ]) or time.time() > deadline:
+                break
+            time.sleep(0.2)
+        self.assertEqual(exr_header(later)["compression"], ("compression", bytes([PIZ])))
+        self.assertLess(len(later), len(exr))
+        self.assertEqual(h["etag"], 'W/"v%d"' % status["version"])  # same version, other bytes
+        self.assertEqual(strings(exr_header(later)), strings(exr_header(exr)))
+        with tempfile.TemporaryDirectory() as tmp:
+            a, b = os.path.join(tmp, "a.exr"), os.path.join(tmp, "b.exr")
+            for path, data in ((a, exr), (b, later)):
+                with open(path, "wb") as f:
+                    f.write(data)
+            self.assert_same_result(a, b)
+        self.assertGreaterEqual(metric(self.d, "proden_publish_compressed_later_total"), 1)
         out = os.path.join(self.d.allowed, "pub_zip_out")
         jid, _, exr = self.publish("pub_zip", output={"dir": out, "compression": "zip"})
         self.assertEqual(exr_header(exr)["compression"], ("compression", bytes([ZIP])))
