@@ -26,7 +26,9 @@
 // faults.
 #include <tbb/global_control.h>
 
+#include <fcntl.h>
 #include <sys/resource.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <chrono>
@@ -105,7 +107,10 @@ double denoise_only(const FrameEstimate& est, const PipelineOptions& po) {
 
 struct SizeResult {
   int w = 0, h = 0;
-  double read_s = 0, write_s = 0, write_published_s = 0, exr_mb = 0;
+  double read_s = 0, write_s = 0, exr_mb = 0;
+  // The published frame: written uncompressed as the daemon publishes it (auto), PIZ at once as
+  // the CLI writes it, and the daemon's compression of it later (read back + PIZ write).
+  double write_published_s = 0, write_piz_s = 0, compress_later_s = 0;
   int published_channels = 0;
   double add_s[2] = {0, 0}, estimate_s[2] = {0, 0};
   StageTimings an[2];  // analytic, [0] = 1 thread, [1] = N threads
@@ -115,7 +120,8 @@ struct SizeResult {
   double cores_obtained[2] = {0, 0};  // process CPU seconds / wall during the analytic run
   double peak_bytes = 0;
   double state_bpp = 0, layout_bpp = 0;
-  double update_s = 0;  // add + estimate + pipeline + write (N threads)
+  double update_s = 0;      // read + add + estimate + pipeline + write as published (N threads)
+  double update_piz_s = 0;  // the same, the frame written PIZ at once
 };
 
 void print_json_stage(std::FILE* f, const char* name, const StageTimings& t, bool last) {
@@ -316,29 +322,45 @@ int main(int argc, char** argv) {
       auto t0 = Clock::now();
       io::write_image(path, W, H, ch);
       s.write_s = since(t0);
-      // What the daemon writes for every version (protocol/publish.hpp): every layer, the
-      // default compression; with --repeat, the median of that many writes.
-      std::vector<double> writes;
+      // What the daemon writes for every version (protocol/publish.hpp): every layer, with the
+      // default compression `auto`, which the daemon writes uncompressed and compresses to PIZ
+      // once it is idle (docs/api.md, output.compression); the CLI writes PIZ at once. With
+      // --repeat, the median of that many of each.
+      std::vector<double> writes, pizs, laters;
+      const int dir_fd = ::open(tmp.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+      if (dir_fd < 0) throw std::runtime_error(tmp + ": cannot open");
       for (int i = 0; i < repeat; ++i) {
+        protocol::FrameFormat format;
+        format.compression = "piz";
         t0 = Clock::now();
-        protocol::write_frame(path, run, {}, protocol::FrameFormat{});
+        protocol::write_frame(path, run, {}, format);
+        pizs.push_back(since(t0));
+        format.compression = "none";
+        t0 = Clock::now();
+        protocol::write_frame(path, run, {}, format);
         writes.push_back(since(t0));
+        t0 = Clock::now();
+        io::compress_image_at(dir_fd, fs::path(path).filename().string(),
+                              std::string(protocol::resolve_frame_compression("auto")), path);
+        laters.push_back(since(t0));
       }
+      ::close(dir_fd);
       s.write_published_s = bench::median(writes);
+      s.write_piz_s = bench::median(pizs);
+      s.compress_later_s = bench::median(laters);
       s.published_channels = 3 * (1 + static_cast<int>(run.layers().size()));
       fs::remove(path);
     }
     s.peak_bytes = peak_rss_bytes();
     s.update_s = s.read_s + s.add_s[1] + s.estimate_s[1] + s.an[1].wall + s.write_published_s;
+    s.update_piz_s = s.update_s - s.write_published_s + s.write_piz_s;
 
     std::printf(
-        "I/O: read one %s pass EXR (%.1f MB) %.3f s; write result "
-        "RGB %.3f s, the published frame (%d ch, %s) %.3f s\n",
+        "I/O: read one %s pass EXR (%.1f MB) %.3f s; write result RGB %.3f s; the published "
+        "frame (%d ch): as the daemon publishes it (auto: none) %.3f s, then compressed to PIZ "
+        "when idle %.3f s; PIZ at once (the CLI) %.3f s\n",
         real.empty() ? "synthetic Cycles-like (float, zip, 10 ch)" : "real", s.exr_mb, s.read_s,
-        s.write_s, s.published_channels,
-        std::string(protocol::resolve_frame_compression(protocol::kDefaultFrameCompression))
-            .c_str(),
-        s.write_published_s);
+        s.write_s, s.published_channels, s.write_published_s, s.compress_later_s, s.write_piz_s);
     std::printf("%-22s %9s %9s\n", "stage (s)", "1 thread",
                 (std::to_string(cores) + " threads").c_str());
     std::printf("%-22s %9.3f %9.3f\n", "accumulate (add 1)", s.add_s[0], s.add_s[1]);
@@ -362,8 +384,8 @@ int main(int argc, char** argv) {
                   cores, s.mc.denoise, s.mc.sure, s.mc.wall);
     std::printf(
         "full update (read pass + add + estimate + pipeline + write), %u threads: %.3f s "
-        "(%.2f MP/s)\n",
-        cores, s.update_s, mp / s.update_s);
+        "(%.2f MP/s); written PIZ at once: %.3f s\n",
+        cores, s.update_s, mp / s.update_s, s.update_piz_s);
     std::printf("state %.0f B/px (bytes_per_pixel(layout) %.0f), peak RSS so far %.0f MB\n",
                 s.state_bpp, s.layout_bpp, s.peak_bytes / 1e6);
     std::fflush(stdout);
@@ -384,14 +406,15 @@ int main(int argc, char** argv) {
   const double k4 = results.size() > 1 ? results[1].an[1].wall / a.an[1].wall : NAN;
   const double k4_1 = results.size() > 1 ? results[1].an[0].wall / a.an[0].wall : NAN;
   const double upd_ratio = cycles_spp_s > 0 ? a.update_s / cycles_spp_s : NAN;
+  const double upd_piz_ratio = cycles_spp_s > 0 ? a.update_piz_s / cycles_spp_s : NAN;
   std::printf("\nsgemm %dx%d: %.1f GFLOP/s (1 thread), %.1f GFLOP/s (%u threads) via %s\n", gemm_n,
               gemm_n, gf1, gfN, cores, how.c_str());
   std::printf("\nratios (same run, %dx%d unless noted):\n", a.w, a.h);
   if (cycles_spp_s > 0)
     std::printf(
         "  full update / one more Cycles spp (%.3f s)           %.2f   (issue 12: the fast path "
-        "<= 0.5, the default pipeline <= 2)\n",
-        cycles_spp_s, upd_ratio);
+        "<= 0.5, the default pipeline <= 2; %.2f written PIZ at once)\n",
+        cycles_spp_s, upd_ratio, upd_piz_ratio);
   else
     std::printf(
         "  full update / one more Cycles spp                    n/a (no --cycles-spp-seconds)\n");
@@ -429,14 +452,17 @@ int main(int argc, char** argv) {
       std::fprintf(
           f,
           "  {\"width\": %d, \"height\": %d, \"read_s\": %.6f, \"write_s\": %.6f, "
-          "\"write_published_s\": %.6f, \"exr_mb\": %.3f,\n"
+          "\"write_published_s\": %.6f, \"write_piz_s\": %.6f, \"compress_later_s\": %.6f, "
+          "\"exr_mb\": %.3f,\n"
           "   \"add_s\": [%.6f, %.6f], \"estimate_s\": [%.6f, %.6f], "
           "\"denoise_only_s\": [%.6f, %.6f],\n"
-          "   \"update_s\": %.6f, \"peak_rss_bytes\": %.0f, \"state_bytes_per_pixel\": %.1f, "
+          "   \"update_s\": %.6f, \"update_piz_s\": %.6f, \"peak_rss_bytes\": %.0f, "
+          "\"state_bytes_per_pixel\": %.1f, "
           "\"layout_bytes_per_pixel\": %.1f, \"cores_obtained\": [%.3f, %.3f],\n",
-          s.w, s.h, s.read_s, s.write_s, s.write_published_s, s.exr_mb, s.add_s[0], s.add_s[1],
-          s.estimate_s[0], s.estimate_s[1], s.denoise_only_s[0], s.denoise_only_s[1], s.update_s,
-          s.peak_bytes, s.state_bpp, s.layout_bpp, s.cores_obtained[0], s.cores_obtained[1]);
+          s.w, s.h, s.read_s, s.write_s, s.write_published_s, s.write_piz_s, s.compress_later_s,
+          s.exr_mb, s.add_s[0], s.add_s[1], s.estimate_s[0], s.estimate_s[1], s.denoise_only_s[0],
+          s.denoise_only_s[1], s.update_s, s.update_piz_s, s.peak_bytes, s.state_bpp, s.layout_bpp,
+          s.cores_obtained[0], s.cores_obtained[1]);
       print_json_stage(f, "analytic_1", s.an[0], false);
       print_json_stage(f, "analytic_n", s.an[1], !s.have_mc);
       if (s.have_mc) print_json_stage(f, "mc_n", s.mc, true);

@@ -39,9 +39,13 @@ def main():
         s = p["sizes"][0]
         if (s["width"], s["height"]) != (64, 48):
             fail("size")
-        for k in ("read_s", "write_s", "write_published_s", "update_s", "peak_rss_bytes"):
+        for k in ("read_s", "write_s", "write_published_s", "write_piz_s", "compress_later_s",
+                  "update_s", "update_piz_s", "peak_rss_bytes"):
             if not (finite(s[k]) and s[k] > 0):
                 fail(f"sizes[0].{k} = {s[k]}")
+        # The update as published (uncompressed) differs from the PIZ one by the writes alone.
+        if abs(s["update_piz_s"] - s["update_s"] - (s["write_piz_s"] - s["write_published_s"])) > 1e-5:
+            fail("update_piz_s")
         if s["state_bytes_per_pixel"] != s["layout_bytes_per_pixel"] or s["state_bytes_per_pixel"] < 120:
             fail("bytes per pixel")
         for k in ("denoise", "mixer", "ttest", "wall"):
@@ -72,7 +76,7 @@ def main():
         s = p["sizes"][0]
         if (s["width"], s["height"]) != (128, 128) or not s["exr_mb"] > 0:
             fail(f"real frame size {s['width']}x{s['height']}, {s['exr_mb']} MB")
-        for k in ("read_s", "write_published_s", "update_s"):
+        for k in ("read_s", "write_published_s", "write_piz_s", "compress_later_s", "update_s"):
             if not (finite(s[k]) and s[k] > 0):
                 fail(f"real frame sizes[0].{k} = {s[k]}")
         if not finite(p["ratios"]["update_over_cycles_spp"]):

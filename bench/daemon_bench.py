@@ -3,6 +3,7 @@
 1920x1080 frame (synthetic generic EXR passes made with oiiotool), and how many concurrent SSE
 clients one daemon serves on loopback with every client receiving every event.
 Usage: bench/daemon_bench.py [--binary build/proden] [--clients 1000] [--passes 4] [--memory]
+       bench/daemon_bench.py --latency-only [--features] [--gap S] [--compression C] [--json J]
        bench/daemon_bench.py --lag [--frames 10] [--rates 30,60,120,240] [--seconds 120] --png P
 (--memory: only the state written per update and the peak RSS of a 1080p frame with features;
  --lag: only the lag from a pass landing to its version, 10 frames at 1080p, for a rate sweep)"""
@@ -44,34 +45,51 @@ def stage_means(d):
 def latency(args, root):
     src = os.path.join(root, "src")
     os.makedirs(src)
-    paths = []
-    for i in range(args.passes):
-        p = os.path.join(src, "p%d.exr" % i)
-        subprocess.run(["oiiotool", "--pattern", "noise:type=gaussian:mean=0.5:stddev=0.2:seed=%d" % (i + 1),
-                        "1920x1080", "3", "-d", "float", "--chnames", "R,G,B", "-o", p], check=True)
-        paths.append(p)
+    if args.features:  # the lag bench's 10-channel passes: the default pipeline's 27-channel output
+        paths = make_feature_passes(src, args.passes)
+    else:
+        paths = []
+        for i in range(args.passes):
+            p = os.path.join(src, "p%d.exr" % i)
+            subprocess.run(["oiiotool", "--pattern", "noise:type=gaussian:mean=0.5:stddev=0.2:seed=%d" % (i + 1),
+                            "1920x1080", "3", "-d", "float", "--chnames", "R,G,B", "-o", p], check=True)
+            paths.append(p)
     settle = 250
     d = Daemon(os.path.join(root, "lat"), config={"watch": {"settle_ms": settle, "tick_ms": 25,
                                                              "poll_interval_ms": 2000}})
     os.makedirs(d.root, exist_ok=True)
     d.start()
     watch = os.path.join(d.allowed, "w")
-    jid = d.create_job("hd", watch, pattern="{pass}/f_{frame}.exr", spp=4)
+    extra = {"output": {"dir": os.path.join(d.allowed, "out_hd"),
+                        "compression": args.compression}} if args.compression else {}
+    jid = d.create_job("hd", watch, pattern="{pass}/f_{frame}.exr", spp=4, **extra)
     sse = SseClient(d)
     rows = []
     for i, p in enumerate(paths):
+        if i and args.gap:  # an idle daemon between passes (a farm it keeps up with)
+            time.sleep(args.gap)
         t0 = time.monotonic()
         place_atomic(p, os.path.join(watch, "%02d" % i, "f_0001.exr"))
         sse.events_until(lambda e: e["event"] == "frame" and e["data"]["passes"] == i + 1, 120)
         rows.append(time.monotonic() - t0)
+    time.sleep(args.gap)
     stages = stage_means(d)
+    compressed = harness.metric(d, "proden_publish_compressed_later_total")
     d.stop()
-    print("1920x1080 generic RGB float EXR passes (%.1f MB each), settle %d ms, 2 workers" %
-          (os.path.getsize(paths[0]) / 1e6, settle))
+    print("1920x1080 generic %s float EXR passes (%.1f MB each), settle %d ms, 2 workers, "
+          "%.0f s idle between passes, output.compression %s" %
+          ("10-channel (RGB, albedo, normal, depth)" if args.features else "RGB",
+           os.path.getsize(paths[0]) / 1e6, settle, args.gap, args.compression or "(default)"))
     for i, r in enumerate(rows):
         print("  pass %d: file renamed into the watch dir -> SSE frame event: %.3f s" % (i + 1, r))
     for stage, (mean, _) in stages.items():
         print("  stage %-10s mean %.3f s" % (stage, mean))
+    print("  versions compressed later (proden_publish_compressed_later_total): %.0f" % compressed)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"latency_s": rows, "stages": {k: v[0] for k, v in stages.items()},
+                       "compressed_later": compressed, "gap_s": args.gap,
+                       "features": args.features, "compression": args.compression}, f, indent=1)
 
 
 FEATURE_CHANNELS = "R,G,B,Albedo.R,Albedo.G,Albedo.B,Normal.X,Normal.Y,Normal.Z,Depth.Z"
@@ -399,6 +417,12 @@ def main():
     ap.add_argument("--clients", type=int, default=1000)
     ap.add_argument("--passes", type=int, default=4)
     ap.add_argument("--skip-latency", action="store_true")
+    ap.add_argument("--latency-only", action="store_true", help="no SSE client sweep")
+    ap.add_argument("--features", action="store_true",
+                    help="latency: 10-channel passes with features (the default pipeline's "
+                    "27-channel output) instead of RGB")
+    ap.add_argument("--gap", type=float, default=0.0,
+                    help="latency: seconds the daemon stays idle between passes")
     ap.add_argument("--memory", action="store_true",
                     help="only the state written per update and the peak RSS (issue 12)")
     ap.add_argument("--lag", action="store_true",
@@ -435,7 +459,8 @@ def main():
             return
         if not args.skip_latency:
             latency(args, root)
-        sse_clients(args, root)
+        if not args.latency_only:
+            sse_clients(args, root)
 
 
 if __name__ == "__main__":
