@@ -72,6 +72,13 @@ std::string temp_name(const std::string& name) {
 
 thread_local OutputDirectory* t_bound = nullptr;
 
+// A single entry of the directory (what the *at() calls take), never a path.
+void check_file_name(const std::string& name, const std::string& display) {
+  if (name.empty() || name.find('/') != std::string::npos || name == "." || name == "..") {
+    throw std::runtime_error(display + ": not a file name");
+  }
+}
+
 }  // namespace
 
 OutputDirectory::OutputDirectory(std::string dir, int dir_fd)
@@ -98,9 +105,7 @@ void write_image_at(int dir_fd, const std::string& name, int width, int height,
                     std::span<const NamedChannel> channels, const WriteOptions& options,
                     const std::string& display_name) {
   const std::string& display = display_name.empty() ? name : display_name;
-  if (name.empty() || name.find('/') != std::string::npos || name == "." || name == "..") {
-    throw std::runtime_error(display + ": not a file name");
-  }
+  check_file_name(name, display);
   const std::size_t n = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
   if (channels.empty() || n == 0) throw std::runtime_error(display + ": nothing to write");
   for (const auto& ch : channels) {
@@ -206,9 +211,7 @@ void add_aovs(std::vector<NamedChannel>& out, const std::vector<AovChannel>& aov
 bool compress_image_at(int dir_fd, const std::string& name, const std::string& compression,
                        const std::string& display_name) {
   const std::string& display = display_name.empty() ? name : display_name;
-  if (name.empty() || name.find('/') != std::string::npos || name == "." || name == "..") {
-    throw std::runtime_error(display + ": not a file name");
-  }
+  check_file_name(name, display);
   const int fd = ::openat(dir_fd, name.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
   if (fd < 0) throw std::runtime_error(display + ": cannot open: " + std::strerror(errno));
   struct Closer {

@@ -465,23 +465,19 @@ void Engine::compress_idle() {
 
 bool Engine::compress_version(const protocol::JobSpec& spec, long frame, std::uint64_t version,
                               bool latest) {
-  const std::string compression(protocol::resolve_frame_compression(spec.output.compression));
+  // The latest is the published file, whose versions/ copy is then made that file again (a hard
+  // link); an older version is its versions/ file alone.
   const fs::path kept = version_file(spec, frame, version);
+  const fs::path file = latest ? fs::path(output_base(spec, frame).string() + ".exr") : kept;
   FileError fe = FileError::none;
   std::string why;
-  if (!latest) {  // an older version: its file in versions/ alone
-    const UniqueFd dir = roots_.open_dir(kept.parent_path(), fe, why);
-    if (!dir) throw std::runtime_error(why);
-    return io::compress_image_at(dir.get(), kept.filename().string(), compression, kept.string());
-  }
-  // The latest: the published file, then its kept copy made that file again (a hard link).
-  const fs::path published = output_base(spec, frame).string() + ".exr";
-  const UniqueFd dir = roots_.open_dir(published.parent_path(), fe, why);
+  const UniqueFd dir = roots_.open_dir(file.parent_path(), fe, why);
   if (!dir) throw std::runtime_error(why);
-  const bool rewritten = io::compress_image_at(dir.get(), published.filename().string(),
-                                               compression, published.string());
+  const bool rewritten = io::compress_image_at(
+      dir.get(), file.filename().string(),
+      std::string(protocol::resolve_frame_compression(spec.output.compression)), file.string());
   std::error_code ec;
-  if (!fs::equivalent(published, kept, ec)) keep_version(published, kept);
+  if (latest && !fs::equivalent(file, kept, ec)) keep_version(file, kept);
   return rewritten;
 }
 
