@@ -96,6 +96,9 @@ int main(int argc, char** argv) {
   const double digest = best_of(repeat, [&] { sink ^= acc.state_digest(); });
   const double serialize = best_of(repeat, [&] { sink ^= acc.serialize().size(); });
   const double hash = best_of(repeat, [&] { sink ^= hash_bytes({bytes.data(), bytes.size()}); });
+  const double checksum = best_of(repeat, [&] {
+    sink ^= checksum_bytes({bytes.data(), bytes.size()});
+  });
   const double file_bytes =
       best_of(repeat, [&] { sink ^= daemon::frame_state_bytes(rec, acc, aovs).size(); });
   const std::filesystem::path path = std::filesystem::path(dir) / "bench_persist.state";
@@ -111,6 +114,7 @@ int main(int argc, char** argv) {
   row("state_digest (the record's digest)", digest);
   row("FrameAccumulator::serialize (copy + hash)", serialize);
   row("hash_bytes over the file's bytes", hash);
+  row("checksum_bytes over them (XXH3, format 4)", checksum);
   row("frame_state_bytes (the whole file in memory)", file_bytes);
   row("save_frame_state (write + fsync + rename)", save.wall);
   std::printf("  %-46s %7.3f s\n", "save_frame_state, CPU (all threads)", save.cpu);

@@ -1,4 +1,4 @@
-// Fuzz target: a frame's state file (service/daemon/frame_state.hpp: "PRDNFRS3", the accumulator
+// Fuzz target: a frame's state file (service/daemon/frame_state.hpp: "PRDNFRS4", the accumulator
 // blob and its hashes, then the JSON record and its hash; versions 1 and 2 put the record first)
 // parsed as the daemon loads it after a restart. Each input is parsed twice: as given (the checksum
 // gates), and with both checksums recomputed so the mutations reach the record's fields and the
@@ -6,8 +6,9 @@
 //
 // Properties: a state either parses or is refused with an exception (never a crash, never UB);
 // an accepted state holds only finite numbers (record, pass history, statistics) and its digest
-// matches its record; written again (frame_state_bytes) it reads back to the same record and the
-// same digest (issue 11, classes 9 and 11); its quarters are finite.
+// matches its record (made with the hash of its format); written again (frame_state_bytes, with
+// today's digest, as the daemon's next commit does) it reads back to the same record and the same
+// statistics (issue 11, classes 9 and 11); its quarters are finite.
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -27,9 +28,10 @@ namespace {
 // The checksums of the file format (daemon/frame_state.cpp: version 1 "PRDNFRS1" = magic, u64 n,
 // record, u64 record hash, accumulator blob; version 2 "PRDNFRS2" = the same with the blob's
 // length before it and a hash of the whole file after it; version 3 "PRDNFRS3" = magic, u64 m,
-// blob, u64 hash of all before it, record, u64 n, u64 record hash; the blob ends with its own
-// checksum, pipeline/src/accumulator_state.cpp). LLVMFuzzerInitialize proves them against a real
-// state, so the harness cannot silently stop reaching past the gates if the format changes.
+// blob, u64 hash of all before it, record, u64 n, u64 record hash; version 4 "PRDNFRS4" = version
+// 3 with XXH3 for hash_bytes; the blob ends with its own checksum, XXH3 from its version 4 on,
+// pipeline/src/accumulator_state.cpp). LLVMFuzzerInitialize proves them against a real state, so
+// the harness cannot silently stop reaching past the gates if the format changes.
 constexpr std::uint64_t kRecordSeed = 0x66726d;
 constexpr std::uint64_t kFileSeed = 0x66726d32;
 constexpr std::uint64_t kBlobSeed = 0x61636373746174;
@@ -38,9 +40,16 @@ void put64(std::vector<std::uint8_t>& b, std::size_t at, std::uint64_t v) {
   std::memcpy(b.data() + at, &v, sizeof v);
 }
 
+// The hash a file (by its magic) or a blob (by its version byte) is checked with.
+HashKind file_kind(std::span<const std::uint8_t> b) {
+  return b.size() >= 8 && std::memcmp(b.data(), "PRDNFRS4", 8) == 0 ? HashKind::xxh3
+                                                                    : HashKind::legacy;
+}
+
 void fix_blob(std::vector<std::uint8_t>& b, std::size_t begin, std::size_t end) {
-  if (end - begin >= 16)
-    put64(b, end - 8, hash_bytes({b.data() + begin, end - 8 - begin}, kBlobSeed));
+  if (end - begin < 16) return;
+  const HashKind kind = b[begin + 7] >= 4 ? HashKind::xxh3 : HashKind::legacy;
+  put64(b, end - 8, hash_with(kind, {b.data() + begin, end - 8 - begin}, kBlobSeed));
 }
 
 // Recomputes every checksum (and a version 2 blob length) where the layout allows; false if not.
@@ -48,8 +57,10 @@ bool fix_checksums(std::vector<std::uint8_t>& b) {
   if (b.size() < 16) return false;
   const bool v1 = std::memcmp(b.data(), "PRDNFRS1", 8) == 0;
   const bool v2 = std::memcmp(b.data(), "PRDNFRS2", 8) == 0;
-  const bool v3 = std::memcmp(b.data(), "PRDNFRS3", 8) == 0;
+  const bool v3 =
+      std::memcmp(b.data(), "PRDNFRS3", 8) == 0 || std::memcmp(b.data(), "PRDNFRS4", 8) == 0;
   if (!v1 && !v2 && !v3) return false;
+  const HashKind kind = file_kind(b);
   std::uint64_t n = 0;
   if (v3) {
     std::uint64_t m = 0;
@@ -57,9 +68,9 @@ bool fix_checksums(std::vector<std::uint8_t>& b) {
     if (b.size() < 40 || m > b.size() - 40) return false;
     n = b.size() - 40 - m;
     fix_blob(b, 16, 16 + m);
-    put64(b, 16 + m, hash_bytes({b.data(), 16 + m}, kFileSeed));
+    put64(b, 16 + m, hash_with(kind, {b.data(), 16 + m}, kFileSeed));
     put64(b, b.size() - 16, n);
-    put64(b, b.size() - 8, hash_bytes({b.data() + 24 + m, n}, kRecordSeed));
+    put64(b, b.size() - 8, hash_with(kind, {b.data() + 24 + m, n}, kRecordSeed));
     return true;
   }
   std::memcpy(&n, b.data() + 8, sizeof n);
@@ -77,16 +88,19 @@ bool fix_checksums(std::vector<std::uint8_t>& b) {
   return true;
 }
 
-void check_accepted(const FrameRecord& rec, const FrameAccumulator& acc) {
+void check_accepted(const FrameRecord& rec, const FrameAccumulator& acc, HashKind kind) {
   FUZZ_CHECK(std::isfinite(rec.estimated_mse));
   FUZZ_CHECK(std::isfinite(rec.spp));
-  FUZZ_CHECK(acc.state_digest() == rec.digest);
+  FUZZ_CHECK(acc.state_digest(kind) == rec.digest);
   FUZZ_CHECK(std::isfinite(acc.total_spp()));
   for (const auto& p : acc.history()) FUZZ_CHECK(std::isfinite(p.spp) && p.spp > 0.0);
   // What the daemon reports of a frame must be JSON it can write (issue 11, class 9).
-  const std::string text = to_json(rec).dump();
-  // Written again, it reads back the same.
-  const std::vector<std::uint8_t> again = frame_state_bytes(rec, acc);
+  (void)to_json(rec).dump();
+  // Written again with today's digest (the next commit), it reads back the same.
+  FrameRecord now = rec;
+  now.digest = acc.state_digest();
+  const std::string text = to_json(now).dump();
+  const std::vector<std::uint8_t> again = frame_state_bytes(now, acc);
   FrameRecord rec2;
   const FrameAccumulator acc2 = parse_frame_state(again, "fuzz (rewritten)", &rec2);
   FUZZ_CHECK(acc2.state_digest() == acc.state_digest());
@@ -110,7 +124,7 @@ bool parse_and_check(std::span<const std::uint8_t> bytes) {
     fuzz::check_json_safe(io::printable(e.what()));
     return false;
   }
-  check_accepted(rec, acc);
+  check_accepted(rec, acc, file_kind(bytes));
   return true;
 }
 

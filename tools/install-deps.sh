@@ -11,6 +11,7 @@ packages=(
   libopenexr-dev libimath-dev
   libboost-dev libboost-system-dev                          # Beast (daemon), Math (t-test quantiles)
   nlohmann-json3-dev libspdlog-dev libfmt-dev catch2 libcli11-dev libtbb-dev
+  libxxhash-dev                                             # state checksums (XXH3)
   python3 curl                                              # service tests, make run
   libbenchmark-dev libopenblas-dev python3-matplotlib       # make bench (micro, sgemm, plots)
   blender python3-torch python3-numpy python3-openimageio   # learned mixer: data, training, tests

@@ -523,10 +523,15 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
   return e;
 }
 
-std::uint64_t FrameAccumulator::state_digest() const {
-  std::uint64_t h = hash_span(std::span<const int>(&width_, 1), 1);
-  h = hash_span(std::span<const int>(&height_, 1), h);
-  auto add = [&h](const auto& v) { h = hash_span(std::span(v.data(), v.size()), h); };
+std::uint64_t FrameAccumulator::state_digest(HashKind kind) const {
+  // Each value's bytes, chained through the seed.
+  const auto chain = [kind]<class T>(std::span<const T> v, std::uint64_t seed) {
+    return hash_with(kind, {reinterpret_cast<const unsigned char*>(v.data()), v.size_bytes()},
+                     seed);
+  };
+  std::uint64_t h = chain(std::span<const int>(&width_, 1), 1);
+  h = chain(std::span<const int>(&height_, 1), h);
+  auto add = [&h, &chain](const auto& v) { h = chain(std::span(v.data(), v.size()), h); };
   for (const auto& half : halves_) {
     add(half.weight);
     add(half.count);
@@ -538,9 +543,9 @@ std::uint64_t FrameAccumulator::state_digest() const {
   }
   for (const FeatureSpread* s : {&albedo_, &normal_, &depth_}) add(s->m2);
   const int feature_halves = feature_halves_ ? 1 : 0;
-  h = hash_span(std::span<const int>(&feature_halves, 1), h);
+  h = chain(std::span<const int>(&feature_halves, 1), h);
   if (quarters_) {  // states without quarters keep the digests they had before quarters existed
-    h = hash_span(std::span<const int>(&feature_halves, 1), h ^ 0x71);
+    h = chain(std::span<const int>(&feature_halves, 1), h ^ 0x71);
     for (const auto& sh : subs_) {
       add(sh.weight);
       add(sh.colour);
@@ -554,7 +559,7 @@ std::uint64_t FrameAccumulator::state_digest() const {
     add(r.name);
     const double fields[] = {r.spp, static_cast<double>(r.half), static_cast<double>(r.fingerprint),
                              static_cast<double>(r.dropped_pixels)};
-    h = hash_span(std::span<const double>(fields), h);
+    h = chain(std::span<const double>(fields), h);
   }
   return h;
 }

@@ -1,16 +1,17 @@
 // Binary (de)serialisation of FrameAccumulator, so a daemon can persist a frame's accumulated
 // state and resume after a restart or crash with bit-identical statistics.
 //
-// Layout of version 3 (host byte order, which is little-endian on every platform proden supports):
+// Layout of version 4 (host byte order, which is little-endian on every platform proden supports):
 //   "PRDNACC" + version byte, u32 width, u32 height, u8 layout flags, u8 feature halves (0/1),
 //   u8 quarters (0/1), per half: vec<f64> weight, vec<u32> count, moments, vec<f64> albedo,
 //   normal, depth means; spread albedo, normal, depth; vec<f64> renderer variance; with quarters,
 //   per half its sub-half 1: vec<f64> weight, colour, albedo, normal, depth means; u64 history
 //   size, per record:
-//   str name, f64 spp, i32 half, u64 fingerprint, u64 dropped, u64 sanitized; trailing u64 hash
-//   of everything before it.
+//   str name, f64 spp, i32 half, u64 fingerprint, u64 dropped, u64 sanitized; trailing u64
+//   checksum_bytes (XXH3) of everything before it.
 // vec<T> = u64 length + raw values; moments = i32 channels + vec mean + vec m2; spread = i32
 // channels + vec m2.
+// Version 3 (still read) is version 4 with the trailing hash made by hash_bytes (proden/hash.hpp).
 // Version 2 (still read) is version 3 without the quarters byte and sub-halves: it loads with
 // quarters() false (the frame's earlier passes were not split into sub-halves).
 // Version 1 (still read: daemons have such states on disk) had no feature halves byte, no
@@ -29,9 +30,10 @@
 namespace proden {
 namespace {
 
-constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'A', 'C', 'C', '\x03'};
+constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'A', 'C', 'C', '\x04'};
 constexpr std::uint8_t kVersion1 = 1;
 constexpr std::uint8_t kVersion2 = 2;
+constexpr std::uint8_t kVersion3 = 3;
 constexpr std::uint64_t kSeed = 0x61636373746174;  // "accstat"
 
 using detail::Reader;
@@ -91,9 +93,9 @@ std::size_t FrameAccumulator::serialized_size() const {
   return c.n + sizeof(std::uint64_t);
 }
 
-std::size_t FrameAccumulator::serialize_to(const ByteSink& sink, ByteHasher* also) const {
+std::size_t FrameAccumulator::serialize_to(const ByteSink& sink, Checksum* also) const {
   const std::size_t n = serialized_size();
-  detail::StreamWriter w(sink, n - sizeof(std::uint64_t), kSeed, also);
+  detail::StreamWriter w(sink, kSeed, also);
   write_state(w);
   w.finish();
   return n;
@@ -113,13 +115,16 @@ FrameAccumulator FrameAccumulator::deserialize(std::span<const std::uint8_t> blo
   }
   const std::uint8_t version = blob[sizeof(kMagic) - 1];
   if (version != static_cast<std::uint8_t>(kMagic[sizeof(kMagic) - 1]) && version != kVersion1 &&
-      version != kVersion2) {
+      version != kVersion2 && version != kVersion3) {
     Reader::fail("unsupported frame state version " + std::to_string(version));
   }
   const std::size_t body = blob.size() - sizeof(std::uint64_t);
   std::uint64_t stored = 0;
   std::memcpy(&stored, blob.data() + body, sizeof(stored));
-  if (hash_span(blob.first(body), kSeed) != stored) Reader::fail("frame state checksum mismatch");
+  const HashKind kind = version <= kVersion3 ? HashKind::legacy : HashKind::xxh3;
+  if (hash_with(kind, blob.first(body), kSeed) != stored) {
+    Reader::fail("frame state checksum mismatch");
+  }
 
   Reader r(blob.first(body));
   r.pos = sizeof(kMagic);

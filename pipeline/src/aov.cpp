@@ -1,7 +1,8 @@
 // AovAccumulator. Binary layout (host byte order): "PRDNAOV" + version byte, u32 width,
 // u32 height, u64 attribute count, per attribute: str name, str value; u64 channel count, per
 // channel: str name, u8 mode, then vec<f64> mean + vec<f64> weight (mean) or vec<f32> (first
-// pass); trailing u64 hash of everything before it.
+// pass); trailing u64 checksum_bytes (XXH3) of everything before it. Version 1 (still read) has
+// the trailing hash made by hash_bytes (proden/hash.hpp).
 #include "proden/aov.hpp"
 
 #include <algorithm>
@@ -15,7 +16,8 @@
 namespace proden {
 namespace {
 
-constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'A', 'O', 'V', '\x01'};
+constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'A', 'O', 'V', '\x02'};
+constexpr char kVersion1 = '\x01';
 constexpr std::uint64_t kSeed = 0x616f7673746174;  // "aovstat"
 
 }  // namespace
@@ -136,7 +138,7 @@ std::vector<std::uint8_t> AovAccumulator::serialize() const {
       w.vec(c.first);
     }
   }
-  w.put<std::uint64_t>(hash_span(std::span<const std::uint8_t>(w.out), kSeed));
+  w.put<std::uint64_t>(checksum_span(std::span<const std::uint8_t>(w.out), kSeed));
   return std::move(w.out);
 }
 
@@ -145,13 +147,20 @@ AovAccumulator AovAccumulator::deserialize(std::span<const std::uint8_t> blob) {
   AovAccumulator a;
   if (blob.empty()) return a;
   if (blob.size() < sizeof(kMagic) + sizeof(std::uint64_t) ||
-      std::memcmp(blob.data(), kMagic, sizeof(kMagic)) != 0) {
+      std::memcmp(blob.data(), kMagic, sizeof(kMagic) - 1) != 0) {
     Reader::fail("not a proden AOV state");
+  }
+  const char version = static_cast<char>(blob[sizeof(kMagic) - 1]);
+  if (version != kMagic[sizeof(kMagic) - 1] && version != kVersion1) {
+    Reader::fail("unsupported AOV state version " + std::to_string(static_cast<int>(version)));
   }
   const std::size_t body = blob.size() - sizeof(std::uint64_t);
   std::uint64_t stored = 0;
   std::memcpy(&stored, blob.data() + body, sizeof stored);
-  if (hash_span(blob.first(body), kSeed) != stored) Reader::fail("AOV state checksum mismatch");
+  const HashKind kind = version == kVersion1 ? HashKind::legacy : HashKind::xxh3;
+  if (hash_with(kind, blob.first(body), kSeed) != stored) {
+    Reader::fail("AOV state checksum mismatch");
+  }
   Reader r(blob.first(body));
   r.pos = sizeof(kMagic);
   a.width_ = static_cast<int>(r.get<std::uint32_t>());

@@ -1,7 +1,9 @@
 #include "proden/hash.hpp"
 
-#include <algorithm>
+#include <xxhash.h>
+
 #include <cstring>
+#include <new>
 
 namespace proden {
 namespace {
@@ -41,29 +43,6 @@ void ByteHasher::update(std::span<const unsigned char> bytes) {
   }
 }
 
-void ByteHasher::update_both(ByteHasher& a, ByteHasher& b, std::span<const unsigned char> bytes) {
-  if (a.fill_ != b.fill_) {  // out of step: no common words
-    a.update(bytes);
-    b.update(bytes);
-    return;
-  }
-  std::size_t i = 0;
-  if (a.fill_ != 0) {  // complete both partial words first
-    i = std::min<std::size_t>(8 - a.fill_, bytes.size());
-    a.update(bytes.first(i));
-    b.update(bytes.first(i));
-  }
-  for (; i + 8 <= bytes.size(); i += 8) {
-    std::uint64_t word;
-    std::memcpy(&word, bytes.data() + i, 8);
-    word *= kMul;
-    a.h_ = mix(a.h_ ^ word) + kMul;
-    b.h_ = mix(b.h_ ^ word) + kMul;
-  }
-  a.update(bytes.subspan(i));
-  b.update(bytes.subspan(i));
-}
-
 std::uint64_t ByteHasher::finish() const {
   std::uint64_t tail = 0;
   std::memcpy(&tail, word_, fill_);
@@ -74,6 +53,27 @@ std::uint64_t hash_bytes(std::span<const unsigned char> bytes, std::uint64_t see
   ByteHasher h(bytes.size(), seed);
   h.update(bytes);
   return h.finish();
+}
+
+std::uint64_t checksum_bytes(std::span<const unsigned char> bytes, std::uint64_t seed) {
+  return XXH3_64bits_withSeed(bytes.data(), bytes.size(), seed);
+}
+
+void Checksum::Free::operator()(XXH3_state_s* s) const {
+  XXH3_freeState(s);
+}
+
+Checksum::Checksum(std::uint64_t seed) : state_(XXH3_createState()) {
+  if (!state_) throw std::bad_alloc();
+  XXH3_64bits_reset_withSeed(state_.get(), seed);
+}
+
+void Checksum::update(std::span<const unsigned char> bytes) {
+  XXH3_64bits_update(state_.get(), bytes.data(), bytes.size());
+}
+
+std::uint64_t Checksum::finish() const {
+  return XXH3_64bits_digest(state_.get());
 }
 
 }  // namespace proden

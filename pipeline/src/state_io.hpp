@@ -56,16 +56,15 @@ class SizeCounter : public Put<SizeCounter> {
   std::size_t n = 0;
 };
 
-// Hands the bytes to a sink in pieces, hashing them as they go (hash_bytes of the whole, `seed`,
-// for a body of `total` bytes): small fields are gathered into a buffer, arrays go to the sink
-// straight from their planes, so a state of a few hundred MB is never copied whole. `also`, if
-// given, is a hash kept over the same bytes (the hash appended too) in the same pass.
+// Hands the bytes to a sink in pieces, checksumming them as they go (checksum_bytes of the whole,
+// `seed`): small fields are gathered into a buffer, arrays go to the sink straight from their
+// planes, so a state of a few hundred MB is never copied whole. `also`, if given, is a checksum
+// kept over the same bytes (the checksum appended too), each piece given to it while in cache.
 class StreamWriter : public Put<StreamWriter> {
  public:
   using Sink = std::function<void(std::span<const std::uint8_t>)>;
-  StreamWriter(const Sink& sink, std::uint64_t total, std::uint64_t seed,
-               ByteHasher* also = nullptr)
-      : sink_(sink), hash_(total, seed), also_(also) {}
+  StreamWriter(const Sink& sink, std::uint64_t seed, Checksum* also = nullptr)
+      : sink_(sink), hash_(seed), also_(also) {}
   void bytes(std::span<const std::uint8_t> b) {
     if (b.size() < kDirect) {
       buf_.insert(buf_.end(), b.begin(), b.end());
@@ -92,16 +91,13 @@ class StreamWriter : public Put<StreamWriter> {
     buf_.clear();
   }
   void emit(std::span<const std::uint8_t> b) {
-    if (also_) {
-      ByteHasher::update_both(hash_, *also_, b);
-    } else {
-      hash_.update(b);
-    }
+    hash_.update(b);
+    if (also_) also_->update(b);
     sink_(b);
   }
   const Sink& sink_;
-  ByteHasher hash_;
-  ByteHasher* also_;
+  Checksum hash_;
+  Checksum* also_;
   std::vector<std::uint8_t> buf_;
 };
 

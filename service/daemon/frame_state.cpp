@@ -21,20 +21,25 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '3'};
+constexpr char kMagic[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '4'};
+constexpr char kMagicV3[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '3'};
 constexpr char kMagicV2[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '2'};
 constexpr char kMagicV1[8] = {'P', 'R', 'D', 'N', 'F', 'R', 'S', '1'};
-// Version 3: magic, u64 m, blob, u64 blob hash | record | u64 n, u64 record hash.
+// Version 4: magic, u64 m, blob, u64 blob hash | record | u64 n, u64 record hash, the hashes
+// checksum_bytes (XXH3). Version 3 (still read) is the same with hash_bytes; versions 1 and 2
+// (still read) put the record first. The sizes and names below say V3 for both 3 and 4.
 constexpr std::size_t kHeadV3 = sizeof kMagic + 8, kTailV3 = 16;
 constexpr std::size_t kMinV3 = kHeadV3 + 8 + kTailV3;  // an empty blob and an empty record
 constexpr std::uint64_t kFileSeed = 0x66726d32;
 
-std::uint64_t file_hash(std::span<const std::uint8_t> b) {
-  return hash_bytes({b.data(), b.size()}, kFileSeed);
+constexpr std::uint64_t kRecordSeed = 0x66726d;
+
+std::uint64_t file_hash(std::span<const std::uint8_t> b, HashKind kind) {
+  return hash_with(kind, {b.data(), b.size()}, kFileSeed);
 }
 
-std::uint64_t text_hash(const std::string& s) {
-  return hash_bytes({reinterpret_cast<const unsigned char*>(s.data()), s.size()}, 0x66726d);
+std::uint64_t text_hash(const std::string& s, HashKind kind) {
+  return hash_with(kind, {reinterpret_cast<const unsigned char*>(s.data()), s.size()}, kRecordSeed);
 }
 
 // The record without its "ingested" list (see record_text).
@@ -150,12 +155,12 @@ std::span<const std::uint8_t> bytes_of(const void* p, std::size_t n) {
   return {static_cast<const std::uint8_t*>(p), n};
 }
 
-// The tail of a version 3 file: the record, its size and its hash. Throws std::invalid_argument
+// The tail of a version 4 file: the record, its size and its hash. Throws std::invalid_argument
 // on a non-finite record.
 std::vector<std::uint8_t> record_tail(const FrameRecord& record, std::size_t accumulator_bytes) {
   check_finite(record);
   const std::string text = record_text(record, accumulator_bytes);
-  const std::uint64_t n = text.size(), h = text_hash(text);
+  const std::uint64_t n = text.size(), h = text_hash(text, HashKind::xxh3);
   std::vector<std::uint8_t> out(text.begin(), text.end());
   for (const std::uint64_t v : {n, h}) {
     const auto b = bytes_of(&v, sizeof v);
@@ -164,7 +169,7 @@ std::vector<std::uint8_t> record_tail(const FrameRecord& record, std::size_t acc
   return out;
 }
 
-// The head and blob of a version 3 file, handed to `put` in order, in pieces (the accumulator's
+// The head and blob of a version 4 file, handed to `put` in order, in pieces (the accumulator's
 // planes straight from it: a 1080p frame with features holds ~600 MB of statistics, which are
 // never copied whole); returns the accumulator's size in the blob.
 template <class Put>
@@ -172,7 +177,7 @@ std::size_t put_statistics(const FrameAccumulator& frame, std::span<const std::u
                            Put&& put) {
   const std::size_t accumulator_bytes = frame.serialized_size();
   const std::uint64_t m = accumulator_bytes + aov.size();
-  ByteHasher h(kHeadV3 + m, kFileSeed);
+  Checksum h(kFileSeed);
   const auto emit = [&](std::span<const std::uint8_t> b) {
     h.update(b);
     put(b);
@@ -327,10 +332,10 @@ void check_v3_sizes(std::uint64_t size, std::uint64_t m, std::uint64_t n, const 
 
 // Version 3's record from the file's last n + kTailV3 bytes (sizes checked), for a blob of m.
 FrameRecord v3_record(std::span<const std::uint8_t> end, std::uint64_t m, const std::string& path,
-                      std::size_t* accumulator_bytes) {
+                      std::size_t* accumulator_bytes, HashKind kind) {
   const std::size_t n = end.size() - kTailV3;
   std::string text(reinterpret_cast<const char*>(end.data()), n);
-  if (get64(end, end.size() - 8) != text_hash(text)) {
+  if (get64(end, end.size() - 8) != text_hash(text, kind)) {
     throw std::runtime_error(path + ": corrupt frame state record");
   }
   std::optional<std::size_t> acc_bytes;
@@ -342,12 +347,13 @@ FrameRecord v3_record(std::span<const std::uint8_t> end, std::uint64_t m, const 
 
 // Version 3, the whole file: the record, and the blob checked against its hash.
 FrameRecord parse_v3(std::span<const std::uint8_t> all, const std::string& path,
-                     std::span<const std::uint8_t>* blob, std::size_t* accumulator_bytes) {
+                     std::span<const std::uint8_t>* blob, std::size_t* accumulator_bytes,
+                     HashKind kind) {
   if (all.size() < kMinV3) throw std::runtime_error(path + ": truncated frame state");
   const std::uint64_t m = get64(all, sizeof kMagic), n = get64(all, all.size() - kTailV3);
   check_v3_sizes(all.size(), m, n, path);
-  FrameRecord r = v3_record(all.last(n + kTailV3), m, path, accumulator_bytes);
-  if (get64(all, kHeadV3 + m) != file_hash(all.first(kHeadV3 + m))) {
+  FrameRecord r = v3_record(all.last(n + kTailV3), m, path, accumulator_bytes, kind);
+  if (get64(all, kHeadV3 + m) != file_hash(all.first(kHeadV3 + m), kind)) {
     throw std::runtime_error(path + ": frame state checksum mismatch");
   }
   *blob = all.subspan(kHeadV3, m);
@@ -366,7 +372,7 @@ FrameRecord parse_record(std::span<const std::uint8_t> b, const std::string& pat
     throw std::runtime_error(path + ": truncated frame state");
   }
   std::string text(reinterpret_cast<const char*>(b.data() + sizeof kMagic + 8), n);
-  if (get64(b, sizeof kMagic + 8 + n) != text_hash(text)) {
+  if (get64(b, sizeof kMagic + 8 + n) != text_hash(text, HashKind::legacy)) {
     throw std::runtime_error(path + ": corrupt frame state record");
   }
   if (blob_offset) *blob_offset = sizeof kMagic + 16 + n;
@@ -393,7 +399,7 @@ FrameRecord load_frame_record(const fs::path& path) {
   std::vector<std::uint8_t> head(kHeadV3);
   read_at(in, 0, head, name);
   constexpr std::uint64_t kMaxRecord = 64u << 20;
-  if (has_magic(head, kMagic)) {  // version 3: the record is read from the end
+  if (has_magic(head, kMagic) || has_magic(head, kMagicV3)) {  // the record is read from the end
     if (size < kMinV3) throw std::runtime_error(name + ": truncated frame state");
     std::uint8_t tail[kTailV3];
     read_at(in, size - kTailV3, tail, name);
@@ -402,7 +408,8 @@ FrameRecord load_frame_record(const fs::path& path) {
     check_v3_sizes(size, m, n, name);
     std::vector<std::uint8_t> end(n + kTailV3);
     read_at(in, size - end.size(), end, name);
-    return v3_record(end, m, name, nullptr);
+    return v3_record(end, m, name, nullptr,
+                     has_magic(head, kMagic) ? HashKind::xxh3 : HashKind::legacy);
   }
   const std::uint64_t n = get64(head, sizeof kMagic);
   if (n > kMaxRecord) throw std::runtime_error(name + ": not a proden frame state");
@@ -416,15 +423,17 @@ FrameAccumulator parse_frame_state(std::span<const std::uint8_t> all, const std:
   std::span<const std::uint8_t> blob;
   std::size_t acc_bytes = 0;
   FrameRecord r;
-  if (has_magic(all, kMagic)) {
-    r = parse_v3(all, path, &blob, &acc_bytes);
+  // The hash states before version 4 were written with (their digest too).
+  const HashKind kind = has_magic(all, kMagic) ? HashKind::xxh3 : HashKind::legacy;
+  if (has_magic(all, kMagic) || has_magic(all, kMagicV3)) {
+    r = parse_v3(all, path, &blob, &acc_bytes, kind);
   } else {
     const bool v2 = has_magic(all, kMagicV2);
     if (v2) {
       // Version 2: the whole file's hash first, then the parts.
       if (all.size() < sizeof kMagic + 32)
         throw std::runtime_error(path + ": truncated frame state");
-      if (get64(all, all.size() - 8) != file_hash(all.first(all.size() - 8))) {
+      if (get64(all, all.size() - 8) != file_hash(all.first(all.size() - 8), kind)) {
         throw std::runtime_error(path + ": frame state checksum mismatch");
       }
     }
@@ -445,7 +454,7 @@ FrameAccumulator parse_frame_state(std::span<const std::uint8_t> all, const std:
   if (acc_bytes > blob.size()) throw std::runtime_error(path + ": truncated frame state");
   FrameAccumulator acc = FrameAccumulator::deserialize(blob.first(acc_bytes));
   if (aovs) *aovs = AovAccumulator::deserialize(blob.subspan(acc_bytes));
-  if (acc.state_digest() != r.digest) {
+  if (acc.state_digest(kind) != r.digest) {
     throw std::runtime_error(path + ": accumulator does not match its record");
   }
   if (record) *record = std::move(r);

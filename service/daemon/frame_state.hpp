@@ -2,16 +2,18 @@
 // contain, in ONE file written atomically (temp + fsync + rename), so that after a crash a pass
 // is either in both or in neither: counted exactly once.
 //
-// File (version 3): "PRDNFRS3", u64 m, m bytes of blob: the accumulator
+// File (version 4): "PRDNFRS4", u64 m, m bytes of blob: the accumulator
 // (FrameAccumulator::serialize) then the renderer AOVs (AovAccumulator::serialize; the record's
 // "accumulator_bytes" says where they start), u64 hash of every byte before it; then n bytes of
-// JSON record, u64 n, u64 hash(JSON). The statistics come first so that they can be written and
-// made durable while the pipeline runs, before the record (which holds the version's estimate)
-// is known (FrameStateWriter). Every byte is covered: the two hashes, and the sizes, which must
-// add up to the file's. The record can be read from the end without the rest (start-up).
-// Version 2 files ("PRDNFRS2", u64 n, n bytes of JSON, u64 hash(JSON), u64 m, m bytes of blob,
-// u64 hash of every byte before it) and version 1 ("PRDNFRS1": no m, no whole-file hash; the
-// blob carries its own checksum) still load. Non-finite numbers are never written (JSON would
+// JSON record, u64 n, u64 hash(JSON). The hashes, the blobs' checksums and the record's digest
+// are XXH3 (checksum_bytes, proden/hash.hpp). Version 3 files ("PRDNFRS3", the same layout with
+// hash_bytes throughout, their blobs and digest included) still load. The statistics come first so
+// that they can be written and made durable while the pipeline runs, before the record (which holds
+// the version's estimate) is known (FrameStateWriter). Every byte is covered: the two hashes, and
+// the sizes, which must add up to the file's. The record can be read from the end without the rest
+// (start-up). Version 2 files ("PRDNFRS2", u64 n, n bytes of JSON, u64 hash(JSON), u64 m, m bytes
+// of blob, u64 hash of every byte before it) and version 1 ("PRDNFRS1": no m, no whole-file hash;
+// the blob carries its own checksum) still load. Non-finite numbers are never written (JSON would
 // turn them into null).
 #pragma once
 

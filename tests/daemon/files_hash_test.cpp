@@ -1,5 +1,6 @@
 // hash_fd: an upload's content hash read through its descriptor in chunks equals hash_bytes of
-// the whole body (the upload idempotency rule compares them, docs/api.md).
+// the whole body (the upload idempotency rule compares them, docs/api.md); the hashes it and the
+// frame state rest on (proden/hash.hpp).
 #include <fcntl.h>
 #include <unistd.h>
 
@@ -29,27 +30,26 @@ TEST_CASE("ByteHasher: pieces of any size give hash_bytes of the whole", "[daemo
   }
 }
 
-TEST_CASE("ByteHasher: update_both equals two updates, in or out of step", "[daemon][files]") {
+TEST_CASE("Checksum: pieces of any size give checksum_bytes of the whole; it is XXH3-64",
+          "[daemon][files]") {
   std::mt19937_64 rng(9);
-  std::vector<unsigned char> bytes(5000);
-  for (auto& b : bytes) b = static_cast<unsigned char>(rng());
-  // `outer` has taken `lead` bytes of its own first (a file's head before the blob): the two
-  // hashers' partial words are in step when lead is a multiple of 8, out of step otherwise.
-  for (const std::size_t lead : {0u, 8u, 16u, 3u, 13u}) {
-    for (const std::size_t piece : {1u, 5u, 8u, 64u, 1000u, 5000u}) {
-      INFO("lead " << lead << " piece " << piece);
-      ByteHasher inner(bytes.size(), 3), outer(lead + bytes.size(), 4);
-      outer.update({bytes.data(), lead});
-      for (std::size_t at = 0; at < bytes.size(); at += piece) {
-        ByteHasher::update_both(inner, outer,
-                                {bytes.data() + at, std::min(piece, bytes.size() - at)});
+  for (const std::size_t n : {0u, 1u, 7u, 8u, 9u, 63u, 1000u, 4099u, 70000u}) {
+    std::vector<unsigned char> bytes(n);
+    for (auto& b : bytes) b = static_cast<unsigned char>(rng());
+    const std::uint64_t whole = checksum_bytes(bytes, 5);
+    CHECK(whole != checksum_bytes(bytes, 6));  // the seed counts
+    for (const std::size_t piece : {1u, 3u, 8u, 13u, 4096u, 65536u}) {
+      Checksum h(5);
+      for (std::size_t at = 0; at < n; at += piece) {
+        h.update({bytes.data() + at, std::min(piece, n - at)});
       }
-      std::vector<unsigned char> whole(bytes.begin(), bytes.begin() + static_cast<long>(lead));
-      whole.insert(whole.end(), bytes.begin(), bytes.end());
-      CHECK(inner.finish() == hash_bytes(bytes, 3));
-      CHECK(outer.finish() == hash_bytes(whole, 4));
+      CHECK(h.finish() == whole);
     }
   }
+  // XXH3-64 of no bytes, seed 0: the value in xxHash's own test vectors.
+  CHECK(checksum_bytes({}) == 0x2D06800538D394C2ull);
+  CHECK(hash_with(HashKind::xxh3, {}, 3) == checksum_bytes({}, 3));
+  CHECK(hash_with(HashKind::legacy, {}, 3) == hash_bytes({}, 3));
 }
 
 TEST_CASE("hash_fd: the file's hash in 1 MiB chunks; a short file is unreadable",

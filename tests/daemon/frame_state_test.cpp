@@ -1,6 +1,6 @@
 // The frame-state file (daemon/frame_state.hpp): the pass identities its record lists (written as
-// text one by one) read back as the record's JSON form says, for any strings; format 3's layout,
-// its two-step writer, and the states of formats 1 and 2 still loading.
+// text one by one) read back as the record's JSON form says, for any strings; format 4's layout,
+// its two-step writer, and the states of formats 1 to 3 still loading.
 #include <catch2/catch.hpp>
 
 #include <cstring>
@@ -37,6 +37,16 @@ FrameAccumulator two_passes(int width, int height) {
   acc.add(test::make_pass(width, height, 2.0, 3), "a");
   acc.add(test::make_pass(width, height, 2.0, 4), "b");
   return acc;
+}
+
+// The accumulator's blob as daemons before format 4 wrote it: version 3, hash_bytes checksum.
+std::vector<std::uint8_t> legacy_blob(const FrameAccumulator& acc) {
+  std::vector<std::uint8_t> b = acc.serialize();
+  b[7] = 3;
+  const std::size_t body = b.size() - 8;
+  const std::uint64_t h = hash_bytes({b.data(), body}, 0x61636373746174);
+  std::memcpy(b.data() + body, &h, sizeof h);
+  return b;
 }
 
 }  // namespace
@@ -117,12 +127,12 @@ TEST_CASE("Frame state: the file written in pieces holds exactly frame_state_byt
   CHECK(back.ingested.size() == 2);
 }
 
-TEST_CASE("Frame state: version 3 puts the statistics first and covers every byte",
+TEST_CASE("Frame state: version 4 puts the statistics first and covers every byte",
           "[daemon][state]") {
   const FrameAccumulator acc = two_passes(6, 4);
   const FrameRecord r = record_with({{"a", "/r/a.exr", 10, 11, 12}}, acc);
   const auto bytes = frame_state_bytes(r, acc);
-  REQUIRE(std::string(bytes.begin(), bytes.begin() + 8) == "PRDNFRS3");
+  REQUIRE(std::string(bytes.begin(), bytes.begin() + 8) == "PRDNFRS4");
   std::uint64_t m = 0, n = 0;
   std::memcpy(&m, bytes.data() + 8, 8);
   std::memcpy(&n, bytes.data() + bytes.size() - 16, 8);
@@ -148,7 +158,7 @@ TEST_CASE("Frame state: version 3 puts the statistics first and covers every byt
   CHECK(refused == static_cast<int>(bytes.size()));
 }
 
-TEST_CASE("Frame state: the record of a version 3 file is read from its end", "[daemon][state]") {
+TEST_CASE("Frame state: the record of a version 4 file is read from its end", "[daemon][state]") {
   test::TempDir t;
   FrameAccumulator acc;
   acc.add(test::make_pass(16, 8, 2.0, 3), "a");
@@ -160,53 +170,75 @@ TEST_CASE("Frame state: the record of a version 3 file is read from its end", "[
   CHECK_THROWS(load_frame_record(path));
 }
 
-TEST_CASE("Frame state: states written in format 2 still load, and are rewritten as 3",
+TEST_CASE("Frame state: states written in formats 2 and 3 still load, and are rewritten as 4",
           "[daemon][state]") {
-  // Format 2 as the daemons before format 3 wrote it (daemon/frame_state.hpp): "PRDNFRS2", u64 n,
-  // the record, u64 hash(record), u64 m, the blob, u64 hash of all before it. (The committed
+  // Formats 2 and 3 as the daemons before format 4 wrote them (daemon/frame_state.hpp), every
+  // hash hash_bytes, the record's digest too. Format 2: "PRDNFRS2", u64 n, the record,
+  // u64 hash(record), u64 m, the blob, u64 hash of all before it. Format 3: "PRDNFRS3", u64 m,
+  // the blob, u64 hash of all before it, the record, u64 n, u64 hash(record). (The committed
   // format-2 fuzz seeds predate the accumulator's current digest and are refused as damaged.)
   test::TempDir t;
   const FrameAccumulator acc = two_passes(6, 4);
-  const FrameRecord r =
-      record_with({{"a", "/r/a.exr", 10, 11, 12}, {"b", "/r/b.exr", 1, 2, 3}}, acc);
-  const std::vector<std::uint8_t> blob = acc.serialize();
+  FrameRecord r = record_with({{"a", "/r/a.exr", 10, 11, 12}, {"b", "/r/b.exr", 1, 2, 3}}, acc);
+  r.digest = acc.state_digest(HashKind::legacy);
+  const std::vector<std::uint8_t> blob = legacy_blob(acc);
   json head = to_json(r);
   head["accumulator_bytes"] = blob.size();
   const std::string text = head.dump();
-  std::vector<std::uint8_t> v2;
-  auto put = [&v2](const void* p, std::size_t n) {
-    v2.insert(v2.end(), static_cast<const std::uint8_t*>(p),
-              static_cast<const std::uint8_t*>(p) + n);
+  const auto text_hash = [&text] {
+    return hash_bytes({reinterpret_cast<const unsigned char*>(text.data()), text.size()}, 0x66726d);
   };
-  auto put64 = [&put](std::uint64_t v) { put(&v, 8); };
-  put("PRDNFRS2", 8);
-  put64(text.size());
-  put(text.data(), text.size());
-  put64(hash_bytes({reinterpret_cast<const unsigned char*>(text.data()), text.size()}, 0x66726d));
-  put64(blob.size());
-  put(blob.data(), blob.size());
-  put64(hash_bytes({v2.data(), v2.size()}, 0x66726d32));
-  const auto path = t.path() / "7.state";
-  {
-    std::ofstream f(path, std::ios::binary);
-    f.write(reinterpret_cast<const char*>(v2.data()), static_cast<std::streamsize>(v2.size()));
+  for (const int format : {2, 3}) {
+    INFO("format " << format);
+    std::vector<std::uint8_t> old;
+    auto put = [&old](const void* p, std::size_t n) {
+      old.insert(old.end(), static_cast<const std::uint8_t*>(p),
+                 static_cast<const std::uint8_t*>(p) + n);
+    };
+    auto put64 = [&put](std::uint64_t v) { put(&v, 8); };
+    if (format == 2) {
+      put("PRDNFRS2", 8);
+      put64(text.size());
+      put(text.data(), text.size());
+      put64(text_hash());
+      put64(blob.size());
+      put(blob.data(), blob.size());
+      put64(hash_bytes({old.data(), old.size()}, 0x66726d32));
+    } else {
+      put("PRDNFRS3", 8);
+      put64(blob.size());
+      put(blob.data(), blob.size());
+      put64(hash_bytes({old.data(), old.size()}, 0x66726d32));
+      put(text.data(), text.size());
+      put64(text.size());
+      put64(text_hash());
+    }
+    const auto path = t.path() / ("7." + std::to_string(format) + ".state");
+    {
+      std::ofstream f(path, std::ios::binary);
+      f.write(reinterpret_cast<const char*>(old.data()), static_cast<std::streamsize>(old.size()));
+    }
+    CHECK(load_frame_record(path).ingested.size() == 2);
+    FrameRecord rec;
+    const FrameAccumulator back = load_frame_accumulator(path, &rec);
+    CHECK(back.serialize() == acc.serialize());
+    CHECK(to_json(rec).dump() == to_json(r).dump());
+    // Rewritten (the frame's next commit, with the digest of today), it is format 4 and reads
+    // back the same.
+    rec.digest = back.state_digest();
+    save_frame_state(path, rec, back);
+    const auto again = read_file(path);
+    REQUIRE(again);
+    CHECK(std::string(again->begin(), again->begin() + 8) == "PRDNFRS4");
+    FrameRecord rec2;
+    CHECK(load_frame_accumulator(path, &rec2).serialize() == acc.serialize());
+    CHECK(rec2.digest == acc.state_digest());
+    CHECK(rec2.ingested.size() == 2);
+    // A flipped byte in an old file is still refused.
+    auto bad = old;
+    bad[bad.size() / 2] ^= 0x10;
+    CHECK_THROWS(parse_frame_state(bad, "7.state", nullptr));
   }
-  CHECK(load_frame_record(path).ingested.size() == 2);
-  FrameRecord rec;
-  const FrameAccumulator back = load_frame_accumulator(path, &rec);
-  CHECK(back.serialize() == blob);
-  CHECK(to_json(rec).dump() == to_json(r).dump());
-  // Rewritten (the frame's next commit), it is format 3 and reads back the same.
-  save_frame_state(path, rec, back);
-  const auto again = read_file(path);
-  REQUIRE(again);
-  CHECK(std::string(again->begin(), again->begin() + 8) == "PRDNFRS3");
-  FrameRecord rec2;
-  CHECK(load_frame_accumulator(path, &rec2).serialize() == blob);
-  CHECK(to_json(rec2).dump() == to_json(r).dump());
-  // A flipped byte in a format-2 file is still refused.
-  v2[v2.size() / 2] ^= 0x10;
-  CHECK_THROWS(parse_frame_state(v2, "7.state", nullptr));
 }
 
 TEST_CASE("Frame state: the statistics are durable before the commit, the file only after it",
@@ -255,8 +287,9 @@ TEST_CASE("Frame state: the statistics are durable before the commit, the file o
 TEST_CASE("Frame state: format-3 files a real daemon wrote load, and rewrite to the same state",
           "[daemon][state]") {
   // The fuzz seeds written by `proden serve` from cropped sample passes (fuzz/README.md), with
-  // the accumulator's format v2 inside: rewritten, the statistics are the same (digest) and
-  // only the accumulator's format byte and its quarters flag (none) are new.
+  // the accumulator's format v2 inside and every hash hash_bytes: rewritten as format 4, the
+  // statistics are the same (digest) and only the accumulator's format byte, its quarters flag
+  // (none), the hashes and the record's digest are new.
   for (const char* name : {"v3_cycles_6x4_2passes.state", "v3_povray_5x3_2passes.state"}) {
     INFO(name);
     const auto path =
@@ -269,14 +302,19 @@ TEST_CASE("Frame state: format-3 files a real daemon wrote load, and rewrite to 
     CHECK(rec.passes == 2);
     CHECK(acc.passes() == 2);
     CHECK(load_frame_record(path).digest == rec.digest);
-    CHECK(acc.state_digest() == rec.digest);
+    CHECK(acc.state_digest(HashKind::legacy) == rec.digest);
     CHECK_FALSE(acc.quarters());
+    const std::string old_digest = std::to_string(rec.digest);
+    rec.digest = acc.state_digest();
+    const std::string new_digest = std::to_string(rec.digest);
     const auto rewritten = frame_state_bytes(rec, acc, aovs);
-    CHECK(rewritten.size() == bytes->size() + 1);
+    // One byte more in the blob (the quarters flag), and the digest's decimal digits.
+    CHECK(rewritten.size() == bytes->size() + 1 + new_digest.size() - old_digest.size());
     FrameRecord rec2;
     AovAccumulator aovs2;
     const FrameAccumulator again = parse_frame_state(rewritten, name, &rec2, &aovs2);
     CHECK(again.state_digest() == rec.digest);
+    CHECK(again.state_digest(HashKind::legacy) == load_frame_record(path).digest);
     CHECK(frame_state_bytes(rec2, again, aovs2) == rewritten);
   }
 }

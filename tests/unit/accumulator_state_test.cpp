@@ -144,7 +144,7 @@ TEST_CASE("a version-1 state (no feature halves) still loads and keeps accumulat
   check_images_close(eo4.albedo_variance, ef4.albedo_variance, 1e-9);
   CHECK(eo4.half_normal[0].empty());
   const auto blob2 = old.serialize();
-  CHECK(blob2[7] == 3);
+  CHECK(blob2[7] == 4);
   const FrameAccumulator again = FrameAccumulator::deserialize(blob2);
   CHECK_FALSE(again.feature_halves());
   CHECK(again.state_digest() == old.state_digest());
@@ -152,7 +152,8 @@ TEST_CASE("a version-1 state (no feature halves) still loads and keeps accumulat
 
 // tests/data/accumulator_v2.bin: written by format v2's serialize() (main at d765318, before
 // quarters) from fixture_pass(0..3) named "v2pass0".."v2pass3"; kV2Digest is that writer's
-// state_digest() of it, which the daemon stores beside the state and checks on load.
+// state_digest() of it, which the daemon stores beside the state and checks on load (made with
+// the hash states before format 4 used: HashKind::legacy).
 constexpr std::uint64_t kV2Digest = 0xc79b132e2820582cULL;
 
 TEST_CASE("a version-2 state (no quarters) still loads, keeps its digest and accumulating",
@@ -163,15 +164,16 @@ TEST_CASE("a version-2 state (no quarters) still loads, keeps its digest and acc
   CHECK(old.passes() == 4);
   CHECK(old.feature_halves());
   CHECK_FALSE(old.quarters());
-  CHECK(old.state_digest() == kV2Digest);
+  CHECK(old.state_digest(HashKind::legacy) == kV2Digest);
+  CHECK(old.state_digest() != kV2Digest);  // format 4's digest is XXH3's
   FrameAccumulator plain, quartered({.quarters = true});
   for (int k = 0; k < 4; ++k) {
     plain.add(fixture_pass(k), "v2pass" + std::to_string(k));
     quartered.add(fixture_pass(k), "v2pass" + std::to_string(k));
   }
   // A state without quarters has the digest it had before quarters existed.
-  CHECK(plain.state_digest() == kV2Digest);
-  CHECK(quartered.state_digest() != kV2Digest);
+  CHECK(plain.state_digest(HashKind::legacy) == kV2Digest);
+  CHECK(quartered.state_digest(HashKind::legacy) != kV2Digest);
   const FrameEstimate eo = old.estimate({.quarters = true});
   const FrameEstimate eq = quartered.estimate({.quarters = true});
   check_images_close(eo.mean, eq.mean, 0.0);
@@ -182,7 +184,7 @@ TEST_CASE("a version-2 state (no quarters) still loads, keeps its digest and acc
   old.add(fixture_pass(4), "v2pass4");
   CHECK(old.estimate({.quarters = true}).quarter_mean[0].empty());
   const auto blob3 = old.serialize();
-  CHECK(blob3[7] == 3);
+  CHECK(blob3[7] == 4);
   CHECK_FALSE(FrameAccumulator::deserialize(blob3).quarters());
 }
 
@@ -208,15 +210,27 @@ TEST_CASE("a state with quarters round-trips and resumes bit-identically", "[acc
 
 // tests/data/accumulator_v3.bin: written by format v3's serialize() as it was before the state
 // was streamed (main at 656bb3d, which built the whole blob in one buffer) from fixture_pass(0..3)
-// named "v3pass0".."v3pass3", with quarters. The streamed writer must produce the same bytes.
-TEST_CASE("a streamed state is the version-3 bytes, in pieces that leave the planes uncopied",
+// named "v3pass0".."v3pass3", with quarters. Version 4 is the same layout with another checksum:
+// the streamed writer must produce those bytes, the version byte and the trailing checksum aside.
+TEST_CASE("a streamed state is the version-3 layout, in pieces that leave the planes uncopied",
           "[accumulator][state]") {
-  const auto fixture = read_fixture("accumulator_v3.bin");
-  REQUIRE(fixture[7] == 3);
+  const auto v3 = read_fixture("accumulator_v3.bin");
+  REQUIRE(v3[7] == 3);
+  auto fixture = v3;
+  fixture[7] = 4;
+  const std::size_t body = fixture.size() - 8;
+  const std::uint64_t sum =
+      checksum_span(std::span<const std::uint8_t>(fixture).first(body), 0x61636373746174);
+  std::memcpy(fixture.data() + body, &sum, sizeof sum);
   FrameAccumulator a({.quarters = true});
   for (int k = 0; k < 4; ++k) a.add(fixture_pass(k), "v3pass" + std::to_string(k));
   CHECK(a.serialize() == fixture);
   CHECK(a.serialized_size() == fixture.size());
+  // The version-3 file still loads (its own hash), as the same state.
+  CHECK(FrameAccumulator::deserialize(v3).state_digest() == a.state_digest());
+  auto damaged = v3;
+  damaged[body / 2] ^= 1;
+  CHECK_THROWS_AS(FrameAccumulator::deserialize(damaged), InputError);
   std::vector<std::uint8_t> streamed;
   std::size_t pieces = 0;
   CHECK(a.serialize_to([&](std::span<const std::uint8_t> b) {
@@ -225,10 +239,10 @@ TEST_CASE("a streamed state is the version-3 bytes, in pieces that leave the pla
   }) == fixture.size());
   CHECK(streamed == fixture);
   CHECK(pieces >= 2);  // the body, then its hash
-  // A hash run beside it (the state file's) sees the same bytes, its checksum included.
-  ByteHasher also(fixture.size(), 11);
+  // A checksum run beside it (the state file's) sees the same bytes, its checksum included.
+  Checksum also(11);
   a.serialize_to([](std::span<const std::uint8_t>) {}, &also);
-  CHECK(also.finish() == hash_bytes(fixture, 11));
+  CHECK(also.finish() == checksum_bytes(fixture, 11));
   CHECK(FrameAccumulator::deserialize(fixture).state_digest() == a.state_digest());
 
   // A frame big enough that each plane is handed over directly: the largest piece is one plane
@@ -258,7 +272,7 @@ TEST_CASE("accumulator state with a non-finite number is refused", "[accumulator
   const auto seal = [](std::vector<std::uint8_t> b) {
     const std::size_t body = b.size() - 8;
     const std::uint64_t h =
-        hash_span(std::span<const std::uint8_t>(b).first(body), 0x61636373746174);
+        checksum_span(std::span<const std::uint8_t>(b).first(body), 0x61636373746174);
     std::memcpy(b.data() + body, &h, sizeof h);
     return b;
   };

@@ -4,10 +4,12 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include "proden/aov.hpp"
 #include "proden/error.hpp"
+#include "proden/hash.hpp"
 
 using namespace proden;
 
@@ -83,4 +85,17 @@ TEST_CASE("AOVs: persisted state round-trips and refuses corruption", "[aov]") {
   bad = blob;
   bad.resize(bad.size() - 9);
   CHECK_THROWS_AS(AovAccumulator::deserialize(bad), InputError);
+  // Version 1 (daemons before frame state format 4): the same layout, checksummed by hash_bytes.
+  REQUIRE(blob[7] == 2);
+  auto v1 = blob;
+  v1[7] = 1;
+  const std::size_t body = v1.size() - 8;
+  const std::uint64_t h = hash_bytes({v1.data(), body}, 0x616f7673746174);
+  std::memcpy(v1.data() + body, &h, sizeof h);
+  CHECK(AovAccumulator::deserialize(v1).serialize() == blob);
+  v1[body / 2] ^= 0x5a;
+  CHECK_THROWS_AS(AovAccumulator::deserialize(v1), InputError);
+  auto v3 = blob;
+  v3[7] = 3;  // a version this daemon does not know
+  CHECK_THROWS_AS(AovAccumulator::deserialize(v3), InputError);
 }

@@ -128,7 +128,8 @@ class FrameAccumulator {
   FrameEstimate estimate(const EstimateOptions& options = {}) const;
 
   // Digest of the whole state (statistics and history): equal digests <=> unchanged state.
-  std::uint64_t state_digest() const;
+  // Frame state files before format 4 stored it made with HashKind::legacy.
+  std::uint64_t state_digest(HashKind kind = HashKind::xxh3) const;
 
   // Binary form of the whole state (statistics and history), for persistence across restarts:
   // versioned magic header, host byte order (little-endian), trailing checksum. deserialize()
@@ -137,10 +138,10 @@ class FrameAccumulator {
   static FrameAccumulator deserialize(std::span<const std::uint8_t> blob);
   // serialize()'s bytes handed to `sink` in order, in pieces (the planes straight from the
   // state, never copied whole: a 1080p state with features is ~600 MB), and their count
-  // (serialized_size(), known first). `also`: a hash to run over the same bytes in the same
-  // pass (the state file's), at about no cost beside the blob's own checksum.
+  // (serialized_size(), known first). `also`: a checksum to run over the same bytes in the same
+  // pass (the state file's), each piece while it is in cache.
   using ByteSink = std::function<void(std::span<const std::uint8_t>)>;
-  std::size_t serialize_to(const ByteSink& sink, ByteHasher* also = nullptr) const;
+  std::size_t serialize_to(const ByteSink& sink, Checksum* also = nullptr) const;
   std::size_t serialized_size() const;
 
  private:
