@@ -35,7 +35,8 @@ def metric_sums(d):
 def stage_means(d):
     sums = metric_sums(d)
     out = {}
-    for stage in ("read", "accumulate", "load", "estimate", "pipeline", "persist", "publish"):
+    for stage in ("read", "accumulate", "load", "estimate", "pipeline", "denoise", "cross_validation",
+                  "mix", "ttest", "persist", "publish"):
         c = sums.get('proden_stage_duration_seconds_count{stage="%s"}' % stage)
         if c:
             out[stage] = (sums['proden_stage_duration_seconds_sum{stage="%s"}' % stage] / c, int(c))
