@@ -59,7 +59,7 @@ class SizeCounter : public Put<SizeCounter> {
 // Hands the bytes to a sink in pieces, checksumming them as they go (checksum_bytes of the whole,
 // `seed`): small fields are gathered into a buffer, arrays go to the sink straight from their
 // planes, so a state of a few hundred MB is never copied whole. `also`, if given, is a checksum
-// kept over the same bytes (the checksum appended too), each piece given to it while in cache.
+// kept over the same bytes (the checksum appended too), each piece given to both in turn.
 class StreamWriter : public Put<StreamWriter> {
  public:
   using Sink = std::function<void(std::span<const std::uint8_t>)>;

@@ -139,7 +139,7 @@ class FrameAccumulator {
   // serialize()'s bytes handed to `sink` in order, in pieces (the planes straight from the
   // state, never copied whole: a 1080p state with features is ~600 MB), and their count
   // (serialized_size(), known first). `also`: a checksum to run over the same bytes in the same
-  // pass (the state file's), each piece while it is in cache.
+  // pass over the pieces (the state file's).
   using ByteSink = std::function<void(std::span<const std::uint8_t>)>;
   std::size_t serialize_to(const ByteSink& sink, Checksum* also = nullptr) const;
   std::size_t serialized_size() const;

@@ -11,7 +11,7 @@ struct XXH3_state_s;
 
 namespace proden {
 
-// The older hash: one multiply-mix per 8 bytes in a serial chain (~1 GB/s). It stays for the
+// The older hash: one multiply-mix per 8 bytes in a serial chain (1-2 GB/s). It stays for the
 // identities already stored (passes' content hashes in frame records and uploads: a changed
 // value would let a re-delivered pass count twice after an upgrade), the SURE probe's seeds, and
 // to check states written before format 4.
@@ -38,8 +38,8 @@ std::uint64_t hash_span(std::span<const T> values, std::uint64_t seed = 0) {
 
 // The checksum of persisted state from frame state format 4 on (the accumulator's and the AOVs'
 // blobs, the state file, FrameAccumulator::state_digest): XXH3-64 with a seed, from Debian's
-// libxxhash, ~12 GB/s on one core where hash_bytes runs at ~1 GB/s (bench/RESULTS.md, "State
-// checksums"). A 1080p frame's ~600 MB of statistics are hashed three times per update.
+// libxxhash, ~12 GB/s on one core where hash_bytes ran at 1.1 GB/s (AMD EPYC; bench/RESULTS.md,
+// "State checksums"). A 1080p frame's ~600 MB of statistics are hashed three times per update.
 std::uint64_t checksum_bytes(std::span<const unsigned char> bytes, std::uint64_t seed = 0);
 
 template <class T>
