@@ -318,3 +318,25 @@ TEST_CASE("Frame state: format-3 files a real daemon wrote load, and rewrite to 
     CHECK(frame_state_bytes(rec2, again, aovs2) == rewritten);
   }
 }
+
+TEST_CASE("Frame state: a format-4 file a real daemon wrote loads, and rewrites to its own bytes",
+          "[daemon][state]") {
+  // fuzz/corpus/frame_state/v4_cycles_6x4_2passes.state: `proden serve` (main at 45acc74) fed two
+  // 6x4 crops of samples/renders/cornell/pass_00.exr and pass_01.exr (oiiotool --cut 6x4+60+60).
+  // Pins format 4 for the daemons after it, as the format-3 seeds pin format 3.
+  const auto path = std::filesystem::path(PRODEN_SOURCE_DIR) / "fuzz" / "corpus" / "frame_state" /
+                    "v4_cycles_6x4_2passes.state";
+  const auto bytes = read_file(path);
+  REQUIRE(bytes);
+  REQUIRE(std::string(bytes->begin(), bytes->begin() + 8) == "PRDNFRS4");
+  FrameRecord rec;
+  AovAccumulator aovs;
+  const FrameAccumulator acc = parse_frame_state(*bytes, "v4", &rec, &aovs);
+  CHECK(rec.passes == 2);
+  CHECK(acc.passes() == 2);
+  CHECK(rec.renderer == "cycles");
+  CHECK(acc.state_digest() == rec.digest);
+  CHECK(acc.state_digest(HashKind::legacy) != rec.digest);
+  CHECK(load_frame_record(path).digest == rec.digest);
+  CHECK(frame_state_bytes(rec, acc, aovs) == *bytes);
+}
