@@ -322,6 +322,14 @@ bool has_magic(std::span<const std::uint8_t> b, const char (&magic)[8]) {
   return b.size() >= sizeof magic && std::memcmp(b.data(), magic, sizeof magic) == 0;
 }
 
+// For a file of the statistics-first layout (versions 3 and 4), the hash it was written with;
+// nothing for another layout.
+std::optional<HashKind> v3_layout(std::span<const std::uint8_t> b) {
+  if (has_magic(b, kMagic)) return HashKind::xxh3;
+  if (has_magic(b, kMagicV3)) return HashKind::legacy;
+  return std::nullopt;
+}
+
 // Version 3's sizes: m (the head's), n (the tail's) and the file's (at least kMinV3, checked
 // before m and n are read) must add up.
 void check_v3_sizes(std::uint64_t size, std::uint64_t m, std::uint64_t n, const std::string& path) {
@@ -399,7 +407,7 @@ FrameRecord load_frame_record(const fs::path& path) {
   std::vector<std::uint8_t> head(kHeadV3);
   read_at(in, 0, head, name);
   constexpr std::uint64_t kMaxRecord = 64u << 20;
-  if (has_magic(head, kMagic) || has_magic(head, kMagicV3)) {  // the record is read from the end
+  if (const auto kind = v3_layout(head)) {  // the record is read from the end
     if (size < kMinV3) throw std::runtime_error(name + ": truncated frame state");
     std::uint8_t tail[kTailV3];
     read_at(in, size - kTailV3, tail, name);
@@ -408,8 +416,7 @@ FrameRecord load_frame_record(const fs::path& path) {
     check_v3_sizes(size, m, n, name);
     std::vector<std::uint8_t> end(n + kTailV3);
     read_at(in, size - end.size(), end, name);
-    return v3_record(end, m, name, nullptr,
-                     has_magic(head, kMagic) ? HashKind::xxh3 : HashKind::legacy);
+    return v3_record(end, m, name, nullptr, *kind);
   }
   const std::uint64_t n = get64(head, sizeof kMagic);
   if (n > kMaxRecord) throw std::runtime_error(name + ": not a proden frame state");
@@ -423,9 +430,10 @@ FrameAccumulator parse_frame_state(std::span<const std::uint8_t> all, const std:
   std::span<const std::uint8_t> blob;
   std::size_t acc_bytes = 0;
   FrameRecord r;
-  // The hash states before version 4 were written with (their digest too).
-  const HashKind kind = has_magic(all, kMagic) ? HashKind::xxh3 : HashKind::legacy;
-  if (has_magic(all, kMagic) || has_magic(all, kMagicV3)) {
+  // The hash the file and its record's digest were made with (legacy before version 4).
+  const std::optional<HashKind> layout = v3_layout(all);
+  const HashKind kind = layout.value_or(HashKind::legacy);
+  if (layout) {
     r = parse_v3(all, path, &blob, &acc_bytes, kind);
   } else {
     const bool v2 = has_magic(all, kMagicV2);
