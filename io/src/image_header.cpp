@@ -181,7 +181,7 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
     std::optional<int> compression;
     std::optional<std::pair<std::uint32_t, std::uint32_t>> tiles;
     std::optional<std::int32_t> chunk_count;
-    bool tiled = (version & kTiled) != 0, have_channels = false, layout_attribute = false;
+    bool tiled = (version & kTiled) != 0, have_channels = false;
     for (int attributes = 0;; ++attributes) {
       if (c.peek() == 0) {  // end of this header
         ++c.pos;
@@ -273,9 +273,7 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
       } else if (attr == "compression" && type == "compression") {
         expect_size(1);
         compression = c.byte();
-      }
-      if (attr == "tiles" || attr == "type" || attr == "chunkCount") layout_attribute = true;
-      if (attr == "tiles" && type == "tiledesc") {
+      } else if (attr == "tiles" && type == "tiledesc") {
         expect_size(9);
         const std::uint32_t tx = c.u32(), ty = c.u32();
         tiles = {tx, ty};
@@ -310,8 +308,6 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
     part.width = static_cast<int>(w);
     part.height = static_cast<int>(h);
     part.windows_equal = *data == *display;
-    part.compression = *compression;
-    part.plain_scanline = !multipart && !tiled && !layout_attribute;
     std::uint64_t chunks = 0;
     if (tiled) {
       if (!tiles || tiles->first == 0 || tiles->second == 0) {
@@ -425,7 +421,7 @@ HeaderSummary inspect_radiance(const ByteSource& src, const std::string& name,
   }
   HeaderSummary out;
   out.format = FileFormat::radiance;
-  out.parts.push_back({static_cast<int>(w), static_cast<int>(h), true, 0, false, {"R", "G", "B"}});
+  out.parts.push_back({static_cast<int>(w), static_cast<int>(h), true, {"R", "G", "B"}});
   out.header_bytes = pos;
   return out;
 }

@@ -14,9 +14,6 @@
 #include <random>
 #include <stdexcept>
 
-#include "exr_decoder.hpp"
-#include "proden/error.hpp"
-#include "proden/io/pass_reader.hpp"
 #include "strips.hpp"
 
 namespace proden::io {
@@ -225,17 +222,8 @@ bool compress_image_at(int dir_fd, const std::string& name, const std::string& c
   if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
     throw std::runtime_error(display + ": not a regular file");
   }
-  // The Core library decodes what the header walk says it may (exr_decoder.hpp): proden's own
-  // uncompressed frames are plain scanline files. A file the walk refuses is not one of them.
-  bool core = false;
-  try {
-    core = core_decodes(inspect_header(FdSource(fd, static_cast<std::uint64_t>(st.st_size)),
-                                       display, ReadLimits{}));
-  } catch (const InputError&) {
-    return false;
-  }
   // The descriptor just opened, by its /proc name: nothing is looked up by path again.
-  auto in = detail::create_exr_input(core);
+  auto in = OIIO::ImageInput::create("openexr");
   OIIO::ImageSpec spec;
   if (!in || !in->open("/proc/self/fd/" + std::to_string(fd), spec)) return false;  // not EXR
   const OIIO::TypeDesc type = spec.format;

@@ -19,7 +19,6 @@
 #include <sstream>
 #include <system_error>
 
-#include "exr_decoder.hpp"
 #include "fail.hpp"
 #include "proden/error.hpp"
 #include "proden/io/text.hpp"
@@ -142,12 +141,7 @@ Opened open_source(const ByteSource& src, const std::string& name, const ReadOpt
   }
   op.proxy = std::make_unique<SourceProxy>(src);
   // The decoder is the one the magic bytes named, never one guessed from a file name.
-  if (format == FileFormat::exr) {
-    const bool core = o.exr_decoder == ExrDecoder::automatic && core_decodes(op.summary);
-    op.in = detail::create_exr_input(core, op.proxy.get());
-  } else {
-    op.in = OIIO::ImageInput::create(to_string(format), false, nullptr, op.proxy.get());
-  }
+  op.in = OIIO::ImageInput::create(to_string(format), false, nullptr, op.proxy.get());
   if (!op.in) fail(InputErrorKind::unreadable, name, "no decoder: " + oiio_error(nullptr));
   OIIO::ImageSpec config;
   OIIO::Filesystem::IOProxy* ptr = op.proxy.get();

@@ -180,3 +180,25 @@ TEST_CASE("12000x12000 pixels declared by a small file are refused before decodi
   CHECK(peak_rss() - before < (std::uint64_t{64} << 20));
   CHECK_THROWS_AS(io::probe_pass(f), InputError);
 }
+
+// Two small files on which OpenImageIO 2.4's OpenEXR Core-library reader (the `openexr:core`
+// attribute) crashed while proden tried it for speed (fuzz/findings.md, rows 6 and 7): a scanline
+// file that also declares `tiles` (a division by zero) and a mutated Cycles pass whose header made
+// the Core library allocate 1.7 GB. proden reads with OpenEXR's C++ library: each is read or
+// refused with an InputError, within a small memory budget.
+TEST_CASE("files that crashed OIIO's Core-library EXR reader are read or refused",
+          "[io][hostile]") {
+  for (const char* name : {"finding_core_tiles_in_scanline.exr", "finding_core_header_bomb.exr"}) {
+    INFO(name);
+    const std::string f = std::string(PRODEN_SOURCE_DIR) + "/fuzz/corpus/pass_reader/" + name;
+    REQUIRE(std::filesystem::exists(f));
+    const auto before = peak_rss();
+    try {
+      const Pass p = io::read_pass(f);
+      CHECK(p.colour.width() > 0);
+    } catch (const InputError& e) {
+      CHECK_FALSE(std::string(e.reason()).empty());
+    }
+    CHECK(peak_rss() - before < (std::uint64_t{64} << 20));
+  }
+}

@@ -1,7 +1,5 @@
 // Round trips of every supported input layout through the pass reader, and real renderer files.
 #include <OpenImageIO/imageio.h>
-#include <fcntl.h>
-#include <unistd.h>
 #include <catch2/catch.hpp>
 
 #include <cmath>
@@ -236,99 +234,6 @@ TEST_CASE("scanlines read in strips of any height equal one whole read", "[io]")
       }
     }
   }
-}
-
-TEST_CASE("OpenEXR's Core library decodes the compressions it is chosen for like the C++ library",
-          "[io]") {
-  for (int c = 0; c <= 3; ++c) CHECK(io::core_decodes(c));  // NONE, RLE, ZIPS, ZIP
-  for (int c = 4; c <= 9; ++c) CHECK_FALSE(io::core_decodes(c));
-  CHECK_FALSE(io::core_decodes(-1));
-  CHECK_FALSE(io::core_decodes(10));
-
-  // Every compression a pass may come in, float and half, scanline and tiled: the automatic choice
-  // must give the C++ library's floats bit for bit. On Debian 12's Core library (3.1.5) B44 of
-  // float channels decodes to other values and DWAA fails, so this fails if either is routed to it.
-  test::TempDir dir;
-  const Layout feats{true, true, true, false};
-  const Pass p = test::make_pass(70, 45, 4, 11, feats);
-  io::ReadOptions classic;
-  classic.exr_decoder = io::ExrDecoder::classic;
-  auto same = [](const Pass& a, const Pass& b) {
-    require_close(a.colour, b.colour, 0);
-    require_close(a.albedo, b.albedo, 0);
-    require_close(a.normal, b.normal, 0);
-    require_close(a.depth, b.depth, 0);
-  };
-  for (const char* compression : {"none", "rle", "zips", "zip", "piz", "pxr24", "b44", "dwaa"}) {
-    for (bool half : {false, true}) {
-      INFO(compression << (half ? " half" : " float"));
-      const std::string f = dir.file(std::string(compression) + (half ? "_h.exr" : "_f.exr"));
-      test::write_generic_exr(f, p, half, compression);
-      const Pass reference = io::read_pass(f, classic);
-      REQUIRE(reference.layout() == feats);
-      same(io::read_pass(f), reference);
-      // Strips of one chunk each, as the daemon reads a large pass.
-      io::ReadOptions strips;
-      strips.strip_bytes = 1;
-      same(io::read_pass(f, strips), reference);
-    }
-  }
-  // A tiled ZIP file, which the Core library reads by tiles.
-  const std::string tiled = dir.file("tiled.exr");
-  {
-    auto out = OIIO::ImageOutput::create(tiled);
-    REQUIRE(out);
-    OIIO::ImageSpec spec(70, 45, 3, OIIO::TypeDesc::FLOAT);
-    spec.tile_width = spec.tile_height = 16;
-    spec.attribute("compression", "zip");
-    std::vector<float> v(70 * 45 * 3);
-    for (std::size_t i = 0; i < 70 * 45; ++i) {
-      for (int c = 0; c < 3; ++c) v[i * 3 + static_cast<std::size_t>(c)] = p.colour.plane(c)[i];
-    }
-    REQUIRE(out->open(tiled, spec));
-    REQUIRE(out->write_image(OIIO::TypeDesc::FLOAT, v.data()));
-    REQUIRE(out->close());
-  }
-  require_close(io::read_pass(tiled).colour, io::read_pass(tiled, classic).colour, 0);
-  require_close(io::read_pass(tiled).colour, p.colour, 0);
-  // Real Cycles passes (ZIP, float and half).
-  for (const char* rel : {"renders/cornell/pass_00.exr", "renders/textured_dof/pass_00.exr"}) {
-    INFO(rel);
-    same(io::read_pass(samples(rel)), io::read_pass(samples(rel), classic));
-  }
-}
-
-// OpenImageIO 2.4's Core-library reader divided by zero (SIGFPE) on a single-part scanline file
-// that declares a `tiles` attribute: the pass_reader fuzz target found it within 5 k executions
-// (fuzz/corpus/pass_reader/finding_core_tiles_in_scanline.exr). Only plain scanline files go to
-// the Core library; this one is read by the C++ library, or refused, never a crash.
-TEST_CASE("only plain single-part scanline files are decoded with OpenEXR's Core library", "[io]") {
-  const auto header = [](const std::string& f) {
-    const int fd = ::open(f.c_str(), O_RDONLY | O_CLOEXEC);
-    REQUIRE(fd >= 0);
-    const struct Closer {
-      int fd;
-      ~Closer() { ::close(fd); }
-    } closer{fd};
-    return io::inspect_header(io::FdSource(fd, std::filesystem::file_size(f)), f, {});
-  };
-  const std::string finding = std::string(PRODEN_SOURCE_DIR) +
-                              "/fuzz/corpus/pass_reader/finding_core_tiles_in_scanline.exr";
-  CHECK_FALSE(io::core_decodes(header(finding)));
-  try {
-    const Pass p = io::read_pass(finding);
-    CHECK(p.colour.width() == 4);
-  } catch (const InputError& e) {
-    CHECK(e.kind() == InputErrorKind::unreadable);
-  }
-  // What renderers write is decoded with it; tiled, multi-part and PIZ files are not.
-  CHECK(io::core_decodes(header(samples("renders/cornell/pass_00.exr"))));
-  CHECK(io::core_decodes(header(samples("renders/povray/pass_00.exr"))));
-  const std::string corpus = std::string(PRODEN_SOURCE_DIR) + "/fuzz/corpus/pass_reader/";
-  CHECK(io::core_decodes(header(corpus + "cycles_8x8_zip.exr")));
-  CHECK_FALSE(io::core_decodes(header(corpus + "povray_4x4_tiled.exr")));
-  CHECK_FALSE(io::core_decodes(header(corpus + "povray_multipart.exr")));
-  CHECK_FALSE(io::core_decodes(header(corpus + "cycles_4x4_piz.exr")));
 }
 
 TEST_CASE("real Blender Cycles pass from samples/", "[io][real]") {

@@ -40,10 +40,6 @@ struct ReadLimits {
 struct HeaderPart {
   int width = 0, height = 0;  // data window
   bool windows_equal = true;  // data window == display window
-  int compression = 0;        // OpenEXR's code: 0 NONE, 1 RLE, 2 ZIPS, 3 ZIP, 4 PIZ, ... 9 DWAB
-  // The part of a single-part scanline EXR that declares no `tiles`, `type` or `chunkCount`
-  // attribute (what Blender and POV-Ray write): the only files decoded with OpenEXR's Core library.
-  bool plain_scanline = false;
   std::vector<std::string> channels;
 };
 

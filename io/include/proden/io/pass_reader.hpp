@@ -18,21 +18,6 @@
 
 namespace proden::io {
 
-// Which library decodes OpenEXR pixels. `automatic`: OpenEXR's Core C library for the parts it
-// decodes like the C++ library and faster (core_decodes), the C++ library for the rest. `classic`:
-// the C++ library for every file, the reference the tests and benchmarks compare against.
-enum class ExrDecoder { automatic, classic };
-
-// Whether OpenEXR's Core library decodes this OpenEXR compression (its code in the header:
-// 0 NONE, 1 RLE, 2 ZIPS, 3 ZIP, 4 PIZ, 5 PXR24, 6 B44, 7 B44A, 8 DWAA, 9 DWAB) like the C++
-// library.
-bool core_decodes(int exr_compression);
-// Whether `automatic` decodes the file with this header with the Core library: a plain single-part
-// scanline EXR (HeaderPart::plain_scanline) of such a compression. Tiled and multi-part files stay
-// with the C++ library: OpenImageIO 2.4's Core reader divides by zero on a scanline file that
-// declares tiles (fuzz/findings.md).
-bool core_decodes(const HeaderSummary& header);
-
 struct ReadOptions {
   Renderer renderer = Renderer::automatic;
   std::optional<double> spp;  // used when the file does not carry its sample count
@@ -46,7 +31,6 @@ struct ReadOptions {
   // Scanline files are decoded this many bytes of interleaved channels at a time (whole when
   // tiled): a read's peak memory is its output planes plus one strip.
   std::uint64_t strip_bytes = std::uint64_t{16} << 20;
-  ExrDecoder exr_decoder = ExrDecoder::automatic;
 };
 
 enum class SppSource { header, option, assumed };
