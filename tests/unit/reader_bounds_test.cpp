@@ -297,3 +297,49 @@ TEST_CASE("EXR header walk: declared sizes must match the types' layouts", "[io]
   preview.resize(8 + 2 * 1 * 4, 0x80);
   CHECK_FALSE(refused({"preview", "preview", preview}));
 }
+
+// OpenEXR's C++ library decodes a chunk read at a wrong offset as zeros, without an error: the
+// pass_reader fuzz target found a pass whose header grew by 5 bytes, so that its one offset
+// pointed into its own offset table (fuzz/corpus/pass_reader/finding_stale_chunk_offset.exr), and
+// proden accumulated it as a black pass. The header walk now checks every offset against the
+// chunk it names; a half-written file (offsets still 0) is refused the same way.
+TEST_CASE("EXR offset tables must name the chunks they index", "[io][format]") {
+  const std::string finding =
+      std::string(PRODEN_SOURCE_DIR) + "/fuzz/corpus/pass_reader/finding_stale_chunk_offset.exr";
+  try {
+    io::read_pass(finding);
+    FAIL("a pass whose chunk offset points into the offset table was accepted");
+  } catch (const InputError& e) {
+    CHECK(e.kind() == InputErrorKind::unreadable);
+    CHECK_THAT(e.reason(), Contains("not where the offset table says"));
+  }
+
+  test::ExrSpec spec;  // uncompressed: one chunk per scanline, 3 of them
+  const std::vector<std::uint8_t> good = test::exr_bytes(spec);
+  const std::uint64_t table =
+      io::inspect_header(io::MemorySource(good), "mem", {}).header_bytes - 8 * 3;
+  const auto entry = [&](const std::vector<std::uint8_t>& b, int i) {
+    std::uint64_t v = 0;
+    for (int j = 7; j >= 0; --j) v = (v << 8) | b[table + 8 * static_cast<std::uint64_t>(i) + j];
+    return v;
+  };
+  const auto with_entry = [&](int i, std::uint64_t v) {
+    std::vector<std::uint8_t> b = good;
+    for (int j = 0; j < 8; ++j)
+      b[table + 8 * static_cast<std::uint64_t>(i) + j] = (v >> (8 * j)) & 0xFF;
+    return b;
+  };
+  REQUIRE(entry(good, 0) == table + 24);  // the first chunk follows the table
+  const auto refused = [](const std::vector<std::uint8_t>& b) {
+    return inspect_error(b).kind() == InputErrorKind::unreadable &&
+           std::string(inspect_error(b).reason()).find("offset table") != std::string::npos;
+  };
+  CHECK(refused(with_entry(1, 0)));                   // half-written: not filled in yet
+  CHECK(refused(with_entry(1, entry(good, 1) - 4)));  // 4 bytes early
+  CHECK(refused(with_entry(1, entry(good, 1) + 4)));  // 4 bytes late
+  CHECK(refused(with_entry(2, entry(good, 1))));      // the chunk of another scanline
+  CHECK(refused(with_entry(2, good.size())));         // past the end
+  CHECK(refused(with_entry(0, table)));               // inside the table
+  // Unchanged, and a file written by OIIO in every layout, it reads.
+  CHECK(io::read_pass(io::MemorySource(good), "mem").colour.at(0, 0, 0) == 0.25f);
+}
