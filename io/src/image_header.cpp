@@ -165,14 +165,20 @@ void check_chunk_tables(const ByteSource& src, const std::string& name, std::uin
   std::uint64_t total = 0;
   for (const PartChunks& p : parts) total += p.count;
   const std::uint64_t end = tables + 8 * total, size = src.size();
-  std::vector<std::uint8_t> table;
-  std::uint64_t entry = tables;
+  // The tables are read in blocks of 8192 entries (the walk has checked they fit in the file).
+  std::vector<std::uint8_t> block;
+  std::uint64_t entry = 0, block_begin = 0;
   for (std::size_t k = 0; k < parts.size(); ++k) {
     const PartChunks& p = parts[k];
-    for (std::uint64_t i = 0; i < p.count; ++i, entry += 8) {
-      std::uint8_t b[8];
-      if (src.read(entry, b, 8) != 8)
-        fail(InputErrorKind::unreadable, name, "truncated offset table");
+    for (std::uint64_t i = 0; i < p.count; ++i, ++entry) {
+      if (entry == block_begin + block.size() / 8) {
+        block_begin = entry;
+        block.resize(static_cast<std::size_t>(8 * std::min<std::uint64_t>(total - entry, 8192)));
+        if (src.read(tables + 8 * entry, block.data(), block.size()) != block.size()) {
+          fail(InputErrorKind::unreadable, name, "truncated chunk offset table");
+        }
+      }
+      const std::uint8_t* b = block.data() + 8 * (entry - block_begin);
       std::uint64_t offset = 0;
       for (int j = 7; j >= 0; --j) offset = (offset << 8) | b[j];
       // Part number (multi-part), then y (scanline) or 4 tile coordinates, then the data size.
