@@ -340,6 +340,6 @@ TEST_CASE("EXR offset tables must name the chunks they index", "[io][format]") {
   CHECK(refused(with_entry(2, entry(good, 1))));      // the chunk of another scanline
   CHECK(refused(with_entry(2, good.size())));         // past the end
   CHECK(refused(with_entry(0, table)));               // inside the table
-  // Unchanged, and a file written by OIIO in every layout, it reads.
+  // Unchanged, it reads (files OIIO writes in every layout: pass_reader_test.cpp's round trips).
   CHECK(io::read_pass(io::MemorySource(good), "mem").colour.at(0, 0, 0) == 0.25f);
 }
