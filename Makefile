@@ -78,7 +78,8 @@ test-asan: asan
 # The ThreadSanitizer configuration builds only the daemon and its tests, and runs the daemon's
 # unit tests and the service tests (tests/service/*.py against the TSan-built daemon; a TSan
 # report fails the test). -g1: line tables and functions, all a report's stacks need, and a third
-# less compile time than -g for the Beast-heavy sources.
+# less compile time than -g for the Beast-heavy sources. The pipeline's heavy math is built without
+# TSan there (pipeline/CMakeLists.txt): it runs single-threaded on a worker's own scratch.
 tsan: deps
 	cmake -S . -B $(TSAN_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo \
 	      "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O2 -g1 -DNDEBUG" -DPRODEN_TSAN=ON \

@@ -16,7 +16,8 @@ namespace proden {
 // see the hand-over between a caller and their pool workers and would report each as a race.
 // With no pool workers, TSan checks everything proden's own threads (daemon workers, HTTP,
 // watcher, SSE) share, and no pool needs a suppression (tests/tsan.supp). Races between tiles of
-// one frame are the tiled-equals-whole tests' business (docs/pipeline.md).
+// one frame are the tiled-equals-whole tests' business (docs/pipeline.md), so that build leaves
+// the denoisers, mixers and t-test uninstrumented (pipeline/CMakeLists.txt).
 #ifdef PRODEN_TSAN_BUILD
 inline constexpr bool kSerialLibraries = true;
 #else
