@@ -4,13 +4,15 @@
 // so that `make fuzz` runs with -malloc_limit_mb=256 -rss_limit_mb=1024: any allocation a few
 // hostile bytes can force past the header checks is a finding (issue 11, class 4).
 //
-// Properties: only proden::InputError leaves the reader, its message is JSON-safe text; a pass
+// Properties: only proden::InputError leaves the reader (io::read_pass, and io::read_layers as
+// the daemon's renditions read a published frame), its message is JSON-safe text; a pass
 // that is accepted has the header's size within the limits, a finite spp in (0, 2^32], planes of
 // the right shape, and every string in its PassInfo JSON-safe.
 #include <cmath>
 #include <cstdint>
 #include <exception>
 #include <span>
+#include <vector>
 
 #include "fuzz_check.hpp"
 #include "proden/error.hpp"
@@ -70,6 +72,23 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   } catch (const InputError& e) {
     fuzz::check_json_safe(e.what());
     fuzz::check_json_safe(e.reason());
+  }
+  // Half of the inputs (by length) are also read as the daemon reads a published frame's layers
+  // for a rendition (io::read_layers): the same walk, fewer channels, a lone Y widened.
+  if (size & 8) {
+    try {
+      const std::vector<Image> layers =
+          io::read_layers(io::MemorySource(std::span<const std::uint8_t>(data, size)), "fuzz",
+                          {"result", "render", "variance", "alpha"}, o);
+      FUZZ_CHECK(layers.size() == 4);
+      for (const Image& l : layers) {
+        FUZZ_CHECK(l.empty() || l.channels() == 3);
+        FUZZ_CHECK(l.empty() || l.same_size(layers[0]) || layers[0].empty());
+        FUZZ_CHECK(l.pixels() <= o.limits.max_pixels);
+      }
+    } catch (const InputError& e) {
+      fuzz::check_json_safe(e.what());
+    }
   }
   // Anything else (std::bad_alloc, std::length_error, an OIIO exception) escapes and is a finding.
   return 0;

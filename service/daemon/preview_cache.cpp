@@ -10,6 +10,7 @@
 #include "daemon/files.hpp"
 #include "daemon/processor.hpp"
 #include "proden/io/image_writer.hpp"
+#include "proden/io/pass_reader.hpp"
 #include "proden/progressive.hpp"
 #include "proden/protocol/api.hpp"
 
@@ -46,8 +47,8 @@ std::string fmt(double v) {
 // Reads the layers `error` is computed from; empty Image when one is missing.
 Image read_error_layer(const std::string& exr) {
   const std::vector<Image> l =
-      read_layers(exr, {"render", "variance", "denoised", "alpha", "sure",
-                        std::string(layer::cv_square), std::string(layer::cv_variance)});
+      io::read_layers(exr, {"render", "variance", "denoised", "alpha", "sure",
+                            std::string(layer::cv_square), std::string(layer::cv_variance)});
   const Image &x = l[0], &v = l[1], &y = l[2], &a = l[3], &s = l[4], &q = l[5], &qv = l[6];
   const auto fits = [&x](const Image& i) {
     return !i.empty() && i.same_size(x) && i.channels() == x.channels();
@@ -150,7 +151,8 @@ PreviewCache::File PreviewCache::get(const fs::path& cache_dir, const fs::path& 
   }
   Image img;
   try {
-    img = l == "error" ? read_error_layer(exr.string()) : read_layer(exr.string(), l);
+    img = l == "error" ? read_error_layer(exr.string())
+                       : std::move(io::read_layers(exr.string(), {l}).front());
   } catch (const std::exception& e) {
     throw ApiError(500, "internal", e.what());
   }

@@ -99,59 +99,6 @@ std::string known_layers() {
   return s;
 }
 
-std::vector<Image> read_layers(const std::string& exr_path,
-                               const std::vector<std::string>& layers) {
-  auto in = OIIO::ImageInput::open(exr_path);
-  if (!in) throw std::runtime_error(exr_path + ": cannot open: " + OIIO::geterror());
-  const OIIO::ImageSpec& spec = in->spec();
-  // Per layer, the channels it is made of: R, G, B, or a single Y; none = absent.
-  std::vector<std::vector<int>> where;
-  for (const std::string& layer : layers) {
-    const std::string prefix = layer == "result" ? "" : layer + ".";
-    std::vector<int> idx;
-    for (const char* s : {"R", "G", "B"}) {
-      for (int c = 0; c < spec.nchannels; ++c) {
-        if (spec.channelnames[static_cast<std::size_t>(c)] == prefix + s) idx.push_back(c);
-      }
-    }
-    if (idx.size() != 3) {
-      idx.clear();
-      for (int c = 0; c < spec.nchannels; ++c) {
-        if (spec.channelnames[static_cast<std::size_t>(c)] == prefix + "Y") idx.push_back(c);
-      }
-      if (idx.size() != 1) idx.clear();
-    }
-    where.push_back(std::move(idx));
-  }
-  std::vector<Image> out(layers.size());
-  if (std::all_of(where.begin(), where.end(), [](const auto& w) { return w.empty(); })) return out;
-  const int w = spec.width, h = spec.height;
-  std::vector<float> all(static_cast<std::size_t>(w) * h * spec.nchannels);
-  if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, all.data())) {
-    throw std::runtime_error(exr_path + ": read failed: " + in->geterror());
-  }
-  for (std::size_t l = 0; l < layers.size(); ++l) {
-    const std::vector<int>& idx = where[l];
-    if (idx.empty()) continue;
-    Image img(w, h, 3);
-    const std::size_t n = img.pixels();
-    for (int c = 0; c < 3; ++c) {
-      const int src = idx[idx.size() == 3 ? static_cast<std::size_t>(c) : 0];
-      auto plane = img.plane(c);
-      for (std::size_t p = 0; p < n; ++p) {
-        plane[p] =
-            all[p * static_cast<std::size_t>(spec.nchannels) + static_cast<std::size_t>(src)];
-      }
-    }
-    out[l] = std::move(img);
-  }
-  return out;
-}
-
-Image read_layer(const std::string& exr_path, const std::string& layer) {
-  return std::move(read_layers(exr_path, {layer}).front());
-}
-
 void write_png(const std::string& path, const Rgb8& image) {
   Image planar(image.width, image.height, 3);
   const std::size_t n = planar.pixels();

@@ -52,11 +52,6 @@ class FrameProcessor {
 bool known_layer(const std::string& layer);
 std::string known_layers();
 
-// Reads layer `layer` ("result" = R,G,B) of a published EXR; empty Image if absent.
-Image read_layer(const std::string& exr_path, const std::string& layer);
-// The same for several layers, decoding the file once.
-std::vector<Image> read_layers(const std::string& exr_path, const std::vector<std::string>& layers);
-
 // Writes an 8-bit sRGB image as a PNG, atomically.
 struct Rgb8;
 void write_png(const std::string& path, const Rgb8& image);

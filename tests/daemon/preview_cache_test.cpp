@@ -1,6 +1,8 @@
 // PreviewCache: layer renditions of a published EXR, made once per version.
 #include <catch2/catch.hpp>
 
+#include <OpenImageIO/imageio.h>
+
 #include <cmath>
 #include <map>
 
@@ -8,6 +10,7 @@
 #include "daemon/preview_cache.hpp"
 #include "daemon/processor.hpp"
 #include "proden/io/image_writer.hpp"
+#include "proden/io/pass_reader.hpp"
 #include "proden/protocol/api.hpp"
 #include "test_support.hpp"
 
@@ -16,6 +19,24 @@ using namespace proden;
 using namespace proden::daemon;
 
 namespace {
+
+// A rendition (PNG or single-layer EXR) as RGB planes, read as any client would read it.
+Image rendition(const std::string& path) {
+  auto in = OIIO::ImageInput::open(path);
+  REQUIRE(in);
+  const OIIO::ImageSpec spec = in->spec();
+  std::vector<float> px(static_cast<std::size_t>(spec.width) * spec.height * spec.nchannels);
+  REQUIRE(in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::FLOAT, px.data()));
+  Image img(spec.width, spec.height, 3);
+  for (int c = 0; c < 3; ++c) {
+    const int src = std::min(c, spec.nchannels - 1);
+    auto plane = img.plane(c);
+    for (std::size_t p = 0; p < plane.size(); ++p) {
+      plane[p] = px[p * static_cast<std::size_t>(spec.nchannels) + static_cast<std::size_t>(src)];
+    }
+  }
+  return img;
+}
 
 // A published-like EXR: R,G,B plus a "render" layer.
 fs::path write_published(const test::TempDir& t) {
@@ -72,7 +93,7 @@ TEST_CASE("PreviewCache: a rendition is made once per version", "[daemon][previe
   CHECK(fs::exists(v2.path));
   CHECK_FALSE(fs::exists(png.path));  // the old version's rendition is gone
   const auto layer = pc.get(cache, exr, 1, 2, "exr", "render");
-  CHECK(read_layer(layer.path.string(), "result").plane(0)[0] == Approx(0.5f));
+  CHECK(rendition(layer.path.string()).plane(0)[0] == Approx(0.5f));
 }
 
 TEST_CASE("PreviewCache: a layer the frame lacks is 404", "[daemon][preview]") {
@@ -141,7 +162,7 @@ TEST_CASE("PreviewCache: alpha and errors are colour-mapped with their range",
   CHECK(header(alpha, "X-Proden-Colormap") == "viridis");
   CHECK(header(alpha, "X-Proden-Scale") == "linear");
   CHECK(header(alpha, "X-Proden-Range") == "0 1");
-  const Image a = read_layer(alpha.path.string(), "result");  // the PNG, as RGB in [0,1]
+  const Image a = rendition(alpha.path.string());  // the PNG, as RGB in [0,1]
   REQUIRE(a.width() == 16);
   // viridis: the left edge (alpha 0) is dark purple, the right edge (alpha 1) yellow
   CHECK(a.at(0, 0, 0) == Approx(0x44 / 255.0f).margin(1e-3));
@@ -154,7 +175,7 @@ TEST_CASE("PreviewCache: alpha and errors are colour-mapped with their range",
   CHECK(header(var, "X-Proden-Colormap") == "magma");
   CHECK(header(var, "X-Proden-Scale") == "log");
   CHECK(header(var, "X-Proden-Range") == "0.0001 0.01");
-  const Image v = read_layer(var.path.string(), "result");
+  const Image v = rendition(var.path.string());
   CHECK(v.at(15, 0, 0) > v.at(0, 0, 0) + 0.2f);  // not black: brighter where the variance is larger
   // Served again from the cache, with the same headers.
   CHECK(header(pc.get(t.path() / "cache", exr, 1, 1, r), "X-Proden-Range") == "0.0001 0.01");
@@ -177,12 +198,11 @@ TEST_CASE("PreviewCache: the error map uses the cross-validation layers when the
     const fs::path exr = write_full(t, cv);
     // A cache of its own per file: renditions are keyed by (version, parameters).
     const fs::path cache = t.path() / (cv ? "cache_cv" : "cache");
-    const Image got = read_layer(pc.get(cache, exr, 1, 1, r).path.string(), "result");
+    const Image got = rendition(pc.get(cache, exr, 1, 1, r).path.string());
     const std::string e = exr.string();
-    const Image x = read_layer(e, "render"), v = read_layer(e, "variance"),
-                y = read_layer(e, "denoised"), a = read_layer(e, "alpha"),
-                s = read_layer(e, "sure");
-    const Image q = read_layer(e, "cvsquare"), qv = read_layer(e, "cvvariance");
+    const std::vector<Image> l = io::read_layers(
+        e, {"render", "variance", "denoised", "alpha", "sure", "cvsquare", "cvvariance"});
+    const Image &x = l[0], &v = l[1], &y = l[2], &a = l[3], &s = l[4], &q = l[5], &qv = l[6];
     REQUIRE(q.empty() == !cv);
     const Image want = cv ? result_error(x, v, y, a, s, &q, &qv) : result_error(x, v, y, a, s);
     const Image other = cv ? result_error(x, v, y, a, s) : Image{};
@@ -206,13 +226,13 @@ TEST_CASE("PreviewCache: thumbnails and exposures are separate renditions", "[da
   const auto thumb = pc.get(t.path() / "cache", exr, 1, 1, r);
   CHECK(thumb.path != full.path);
   CHECK(thumb.etag != full.etag);
-  CHECK(read_layer(thumb.path.string(), "result").width() == 8);
-  CHECK(read_layer(thumb.path.string(), "result").height() == 4);
+  CHECK(rendition(thumb.path.string()).width() == 8);
+  CHECK(rendition(thumb.path.string()).height() == 4);
   r.size = 0;
   r.exposure = 2.0;
   const auto bright = pc.get(t.path() / "cache", exr, 1, 1, r);
-  CHECK(read_layer(bright.path.string(), "result").at(0, 0, 0) >
-        read_layer(full.path.string(), "result").at(0, 0, 0) + 0.05f);
+  CHECK(rendition(bright.path.string()).at(0, 0, 0) >
+        rendition(full.path.string()).at(0, 0, 0) + 0.05f);
   // A new version clears every rendition of the old one.
   pc.get(t.path() / "cache", exr, 1, 2, r);
   CHECK_FALSE(fs::exists(thumb.path));

@@ -10,6 +10,7 @@
 #include <fstream>
 #include <map>
 
+#include "proden/error.hpp"
 #include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
 #include "test_support.hpp"
@@ -147,6 +148,55 @@ TEST_CASE("strips of any height write the planes exactly", "[io][writer]") {
         }
       }
     }
+  }
+}
+
+TEST_CASE("read_layers decodes only the layers asked for, in strips, RGB or a lone Y",
+          "[io][reader]") {
+  // A published-like frame: R,G,B, an RGB layer, a one-channel layer (Y) and one more RGB layer
+  // that is not asked for. Strips of 1 byte (one chunk at a time) and the whole image must give
+  // the same planes; a Y layer comes back as three equal planes; an absent layer as empty, and
+  // read_layer() names it in its error.
+  test::TempDir dir;
+  const Pass p = test::make_pass(29, 40, 4, 7, Layout{true, true, false, false});
+  Image grey(29, 40, 1);
+  for (std::size_t i = 0; i < grey.pixels(); ++i) grey.data()[i] = 0.25f * static_cast<float>(i);
+  std::vector<io::NamedChannel> ch;
+  io::add_layer(ch, "", p.colour);
+  io::add_layer(ch, "albedo.", p.albedo);
+  io::add_layer(ch, "count.", grey, "Y");
+  io::add_layer(ch, "normal.", p.normal);
+  io::WriteOptions w;
+  w.compression = "zip";  // 16-row chunks: a 1-byte strip reads 3 of them, one at a time
+  const std::string f = dir.file("layers.exr");
+  io::write_image(f, 29, 40, ch, w);
+  for (const std::uint64_t strip : {std::uint64_t{1}, std::uint64_t{1} << 30}) {
+    INFO("strip " << strip);
+    io::ReadOptions o;
+    o.strip_bytes = strip;
+    const std::vector<Image> l =
+        io::read_layers(f, {"result", "count", "missing", "albedo", ""}, o);
+    REQUIRE(l.size() == 5);
+    const auto same = [](const Image& a, const Image& b) {
+      return a.same_size(b) && std::ranges::equal(a.data(), b.data());
+    };
+    CHECK(same(l[0], p.colour));
+    REQUIRE(l[1].channels() == 3);
+    for (int c = 0; c < 3; ++c) {
+      CHECK(std::equal(grey.data().begin(), grey.data().end(), l[1].plane(c).begin()));
+    }
+    CHECK(l[2].empty());
+    CHECK(same(l[3], p.albedo));
+    CHECK(same(l[4], p.colour));
+  }
+  CHECK(std::ranges::equal(io::read_layer(f, "count").data(),
+                           io::read_layers(f, {"count"})[0].data()));
+  try {
+    io::read_layer(f, "missing");
+    FAIL("a missing layer was read");
+  } catch (const proden::InputError& e) {
+    CHECK(e.kind() == proden::InputErrorKind::missing_channels);
+    CHECK_THAT(e.what(), Catch::Contains("layers.exr") && Catch::Contains("'missing'"));
   }
 }
 

@@ -91,11 +91,22 @@ Pass read_pass(const ByteSource& source, const std::string& name, const ReadOpti
 // Reads the RGB colour of any image proden reads or writes (passes, references, outputs).
 Image read_rgb(const std::string& path, const ReadOptions& options = {});
 
-// Reads the RGB channels "<layer>.{R,G,B}" (e.g. proden's "render", "denoised" AOVs); "" or
-// "result" reads the image's own colour as read_rgb() does.
+// Reads the RGB channels "<layer>.{R,G,B}" (e.g. proden's "render", "denoised" AOVs), or a lone
+// "<layer>.Y" as three equal planes; "" or "result" reads the image's own colour as read_rgb()
+// does. A missing layer is an InputError (missing_channels).
 Image read_layer(const std::string& path, const std::string& layer,
                  const ReadOptions& options = {});
 Image read_layer(const ByteSource& source, const std::string& name, const std::string& layer,
                  const ReadOptions& options = {});
+
+// Several layers of one image, each as read_layer() reads it ("" or "result" here: the channels
+// R, G, B or a lone Y themselves, as proden's outputs name them), decoding only their channels, a
+// strip at a time: the daemon's renditions of a published frame (docs/api.md). A layer the image
+// lacks comes back as an empty Image.
+std::vector<Image> read_layers(const std::string& path, const std::vector<std::string>& layers,
+                               const ReadOptions& options = {});
+std::vector<Image> read_layers(const ByteSource& source, const std::string& name,
+                               const std::vector<std::string>& layers,
+                               const ReadOptions& options = {});
 
 }  // namespace proden::io
