@@ -44,12 +44,23 @@ FUZZ_SMOKE_SECONDS ?= 20
 # minutes instead of 7.9 (bench/RESULTS.md "make test's own time"). UNITY=OFF builds file by file,
 # faster when one source changes.
 UNITY     ?= ON
-CMAKE_COMMON = -DCMAKE_UNITY_BUILD=$(UNITY) -DPRODEN_WERROR=$(WERROR)
+# Ninja: a target's sources compile while the libraries it links are still being built (the
+# Makefile generator waits for each library first), so the two cores stay busy along the chain
+# pipeline -> io -> protocol -> daemon -> tests (bench/RESULTS.md "make test's own time").
+GENERATOR ?= Ninja
+CMAKE_COMMON = -G "$(GENERATOR)" -DCMAKE_UNITY_BUILD=$(UNITY) -DPRODEN_WERROR=$(WERROR)
+# CMake refuses to reconfigure a tree with another generator: such a tree (e.g. one made before
+# the switch to Ninja) is configured afresh (its cache removed; outputs are rebuilt).
+same_generator = @if [ -f $(1)/CMakeCache.txt ] && \
+	  ! grep -qx 'CMAKE_GENERATOR:INTERNAL=$(GENERATOR)' $(1)/CMakeCache.txt; then \
+	  echo "$(1): configured with another generator; configuring it afresh for $(GENERATOR)"; \
+	  rm -rf $(1)/CMakeCache.txt $(1)/CMakeFiles; fi
 
 deps:
 	@tools/install-deps.sh
 
 build: deps
+	$(call same_generator,$(BUILD_DIR))
 	cmake -S . -B $(BUILD_DIR) -DCMAKE_BUILD_TYPE=Release $(CMAKE_COMMON)
 	cmake --build $(BUILD_DIR) -j $(JOBS)
 
@@ -63,11 +74,14 @@ test: build test-asan test-tsan fuzz-smoke
 # 8.6 minutes instead of 9.7 with full -g (2 cores, bench/RESULTS.md "make test's own time").
 # clang, with libFuzzer's coverage instrumentation too (PRODEN_FUZZ): the same tree builds the
 # fuzz targets for make fuzz-smoke, so make test compiles the sanitized libraries once.
+# proden_asan_targets (unit and daemon tests, fuzz targets) and proden_tsan_targets are one goal
+# each, which -j builds in parallel; targets named one by one are built one after another.
 asan: deps
+	$(call same_generator,$(ASAN_DIR))
 	cmake -S . -B $(ASAN_DIR) -DCMAKE_BUILD_TYPE=Debug "-DCMAKE_CXX_FLAGS_DEBUG=-gline-tables-only -O1" \
 	      -DCMAKE_CXX_COMPILER=clang++ -DPRODEN_SANITIZE=ON -DPRODEN_FUZZ=ON \
 	      $(CMAKE_COMMON) -DPRODEN_BUILD_BENCH=OFF
-	cmake --build $(ASAN_DIR) -j $(JOBS) --target proden_unit_tests proden_daemon_tests
+	cmake --build $(ASAN_DIR) -j $(JOBS) --target proden_asan_targets
 
 # The sanitizer configuration runs the unit tests and the daemon's unit tests (the CLI/integration
 # tests run in the Release tree).
@@ -81,10 +95,11 @@ test-asan: asan
 # less compile time than -g for the Beast-heavy sources. The pipeline's heavy math is built without
 # TSan there (pipeline/CMakeLists.txt): it runs single-threaded on a worker's own scratch.
 tsan: deps
+	$(call same_generator,$(TSAN_DIR))
 	cmake -S . -B $(TSAN_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo \
 	      "-DCMAKE_CXX_FLAGS_RELWITHDEBINFO=-O2 -g1 -DNDEBUG" -DPRODEN_TSAN=ON \
 	      $(CMAKE_COMMON) -DPRODEN_BUILD_BENCH=OFF
-	cmake --build $(TSAN_DIR) -j $(JOBS) --target proden proden_daemon_tests
+	cmake --build $(TSAN_DIR) -j $(JOBS) --target proden_tsan_targets
 
 test-tsan: tsan
 # A TSan build runs library thread pools (TBB, OIIO, OpenEXR) on their caller's thread, the CLI's
@@ -112,8 +127,9 @@ fuzz-smoke: asan
 	fuzz/run.py smoke $(ASAN_DIR) --seconds $(FUZZ_SMOKE_SECONDS) --targets $(FUZZ_TARGETS)
 
 fuzz-build: deps
+	$(call same_generator,$(FUZZ_DIR))
 	cmake -S . -B $(FUZZ_DIR) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_COMPILER=clang++ \
-	      -DCMAKE_UNITY_BUILD=$(UNITY) -DPRODEN_FUZZ=ON -DPRODEN_BUILD_TESTS=OFF -DPRODEN_BUILD_BENCH=OFF
+	      -G "$(GENERATOR)" -DCMAKE_UNITY_BUILD=$(UNITY) -DPRODEN_FUZZ=ON -DPRODEN_BUILD_TESTS=OFF -DPRODEN_BUILD_BENCH=OFF
 	cmake --build $(FUZZ_DIR) -j $(JOBS) --target $(FUZZ_TARGET_NAMES)
 
 fuzz: fuzz-build
@@ -122,6 +138,7 @@ fuzz: fuzz-build
 
 bench: deps
 	@tools/install-deps.sh blender   # renders the evaluation sets it lacks
+	$(call same_generator,$(BENCH_DIR))
 	cmake -S . -B $(BENCH_DIR) -DCMAKE_BUILD_TYPE=Release $(CMAKE_COMMON)
 	cmake --build $(BENCH_DIR) -j $(JOBS) --target proden_eval_levels proden_bench_pipeline \
 	    proden_bench_network proden_micro_kernels proden_bench_nfor proden_nfor_eval

@@ -5,7 +5,7 @@
 set -euo pipefail
 
 packages=(
-  cmake g++ make pkg-config
+  cmake ninja-build g++ make pkg-config
   clang libclang-rt-14-dev                                  # make fuzz, make fuzz-smoke (libFuzzer)
   libopenimageio-dev openimageio-tools libopencv-core-dev   # OIIO's CMake target names opencv4 headers
   libopenexr-dev libimath-dev
