@@ -75,7 +75,8 @@ test: build test-asan test-tsan fuzz-smoke
 # clang, with libFuzzer's coverage instrumentation too (PRODEN_FUZZ): the same tree builds the
 # fuzz targets for make fuzz-smoke, so make test compiles the sanitized libraries once.
 # proden_asan_targets (unit and daemon tests, fuzz targets) and proden_tsan_targets are one goal
-# each, which -j builds in parallel; targets named one by one are built one after another.
+# each, which -j builds in parallel with either generator (the Makefile generator builds targets
+# named one by one after another).
 asan: deps
 	$(call same_generator,$(ASAN_DIR))
 	cmake -S . -B $(ASAN_DIR) -DCMAKE_BUILD_TYPE=Debug "-DCMAKE_CXX_FLAGS_DEBUG=-gline-tables-only -O1" \
