@@ -30,9 +30,10 @@ if fresh:
     d.start()
     watch = os.path.join(d.allowed, "w")
     jid = d.create_job("shot", watch)
-    for i, p in enumerate(sys.argv[3:] or ["/tmp/cyc/c1.exr", "/tmp/cyc/c4.exr"]):
+    passes = sys.argv[3:] or ["/tmp/cyc/c1.exr", "/tmp/cyc/c4.exr"]
+    for i, p in enumerate(passes):
         place_atomic(p, os.path.join(watch, "pass_%02d" % i, "beauty_0001.exr"))
-    d.wait_passes(jid, 1, 2, timeout=300)
+    d.wait_passes(jid, 1, len(passes), timeout=300)
     time.sleep(10)   # idle compression
     d.stop()
     open(os.path.join(root, "jid"), "w").write(jid)

@@ -571,7 +571,8 @@ std::vector<Image> read_layers(const ByteSource& source, const std::string& name
                                const std::vector<std::string>& layers, const ReadOptions& options) {
   Opened op = open_source(source, name, options);
   const Header h = read_header(*op.in, op.summary, name, options.limits);
-  // Per layer, the channels it is made of: R, G, B, or a lone Y; none when absent.
+  // Per layer, the channels its three planes come from: R, G, B, or a lone Y three times (the
+  // loader decodes it once); none when absent.
   std::vector<std::vector<std::string>> sets;
   for (const std::string& layer : layers) {
     const std::string prefix = layer.empty() || layer == "result" ? "" : layer + ".";
@@ -579,22 +580,14 @@ std::vector<Image> read_layers(const ByteSource& source, const std::string& name
     if (std::all_of(rgb.begin(), rgb.end(), [&](const auto& n) { return h.where.count(n); })) {
       sets.push_back(std::move(rgb));
     } else if (h.where.count(prefix + "Y")) {
-      sets.push_back({prefix + "Y"});
+      sets.push_back({prefix + "Y", prefix + "Y", prefix + "Y"});
     } else {
       sets.emplace_back();
     }
   }
   ChannelLoader loader(*op.in, h, name, sets, options.strip_bytes);
   check_budget(loader.peak_bytes(source.size()), name, options.limits);
-  std::vector<Image> out = loader.load();
-  for (Image& img : out) {
-    if (img.empty() || img.channels() == 3) continue;
-    Image grey(img.width(), img.height(), 3);
-    for (int c = 0; c < 3; ++c)
-      std::copy_n(img.plane(0).data(), img.pixels(), grey.plane(c).data());
-    img = std::move(grey);
-  }
-  return out;
+  return loader.load();
 }
 
 std::vector<Image> read_layers(const std::string& path, const std::vector<std::string>& layers,
