@@ -16,6 +16,7 @@ namespace proden {
 namespace {
 
 constexpr std::size_t kGrain = 4096;  // pixels per parallel task
+constexpr std::size_t kBlock = 512;   // pixels per block of add()'s plane-by-plane updates
 constexpr double kFeatureInf = 1e10;  // what +-Inf features become (Cycles' background depth)
 
 float to_float(double v) {
@@ -95,6 +96,10 @@ std::size_t FrameAccumulator::state_bytes() const {
 }
 
 void FrameAccumulator::check(const Pass& pass, const std::string& name) const {
+  validate(pass, name);
+}
+
+std::uint64_t FrameAccumulator::validate(const Pass& pass, const std::string& name) const {
   if (!std::isfinite(pass.spp) || pass.spp <= 0.0) {
     throw InputError(
         InputErrorKind::invalid_value, name,
@@ -108,7 +113,9 @@ void FrameAccumulator::check(const Pass& pass, const std::string& name) const {
   check_plane(pass.normal, pass.colour, 3, "normal", name);
   check_plane(pass.depth, pass.colour, 1, "depth", name);
   check_plane(pass.variance, pass.colour, 3, "variance", name);
-  if (empty()) return;
+  // Hashed once per pass (a serial hash of the whole colour plane: ~25 ms at 1080p).
+  const std::uint64_t fp = fingerprint(pass);
+  if (empty()) return fp;
 
   if (pass.width() != width_ || pass.height() != height_) {
     throw InputError(InputErrorKind::size_mismatch, name,
@@ -123,7 +130,6 @@ void FrameAccumulator::check(const Pass& pass, const std::string& name) const {
   }
   // A bit-identical pass repeats a seed: accepting it would shrink Var[x] and lie. A constant
   // image (all black, a flat background) is legitimately identical between seeds, so it passes.
-  const std::uint64_t fp = fingerprint(pass);
   for (const auto& r : history_) {
     if (r.fingerprint == fp && !is_constant(pass.colour)) {
       throw InputError(
@@ -131,6 +137,7 @@ void FrameAccumulator::check(const Pass& pass, const std::string& name) const {
           "identical to the already accumulated pass '" + r.name + "' (same seed rendered twice?)");
     }
   }
+  return fp;
 }
 
 void FrameAccumulator::initialise(const Pass& pass) {
@@ -176,12 +183,11 @@ void FrameAccumulator::initialise(const Pass& pass) {
 }
 
 AddResult FrameAccumulator::add(const Pass& pass, const std::string& name) {
-  check(pass, name);
   PassRecord record;
+  record.fingerprint = validate(pass, name);
   record.name = name;
   record.spp = pass.spp;
   record.half = passes() % 2;
-  record.fingerprint = fingerprint(pass);
   history_.reserve(history_.size() + 1);  // the only allocation that could fail after mutation
   if (empty()) initialise(pass);
 
@@ -198,75 +204,115 @@ AddResult FrameAccumulator::add(const Pass& pass, const std::string& name) {
   tbb::combinable<std::size_t> dropped_count([] { return std::size_t{0}; });
   tbb::combinable<std::size_t> sanitized_count([] { return std::size_t{0}; });
 
-  auto update = [](Moments& m, int c, std::size_t p, std::size_t np, double x, double w_add,
-                   double w_new) {
-    const std::size_t i = static_cast<std::size_t>(c) * np + p;
-    const double delta = x - m.mean[i];
-    m.mean[i] += delta * (w_add / w_new);
-    m.m2[i] += w_add * delta * (x - m.mean[i]);
-  };
-
+  // Each chunk goes in blocks of kBlock pixels: first the per-pixel terms every plane shares
+  // (whether the pass's colour is usable there, the weights before this pass and the update
+  // factors), then each plane of the state on its own, so an inner loop streams a few planes
+  // instead of all ~40 at once (the state is planar). Every element gets exactly the arithmetic
+  // it got per pixel, in the same order: the state is the same to the bit.
   parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
     std::size_t dropped = 0;
     std::size_t sanitized = 0;
-    for (std::size_t p = begin; p < end; ++p) {
-      bool ok = true;
-      for (int c = 0; c < 3; ++c) ok = ok && std::isfinite(pass.colour.plane(c)[p]);
-      if (layout_.variance) {
-        for (int c = 0; c < 3; ++c) {
-          const float v = pass.variance.plane(c)[p];
-          ok = ok && std::isfinite(v) && v >= 0.0f;
+    std::array<unsigned char, kBlock> ok{};
+    std::array<double, kBlock> wa{}, wb{}, w_old{}, f_total{}, f_half{}, f_sub{};
+    for (std::size_t b0 = begin; b0 < end; b0 += kBlock) {
+      const std::size_t m = std::min(end - b0, kBlock);
+      for (std::size_t j = 0; j < m; ++j) {
+        const std::size_t p = b0 + j;
+        bool good = true;
+        for (int c = 0; c < 3; ++c) good = good && std::isfinite(pass.colour.plane(c)[p]);
+        if (layout_.variance) {
+          for (int c = 0; c < 3; ++c) {
+            const float v = pass.variance.plane(c)[p];
+            good = good && std::isfinite(v) && v >= 0.0f;
+          }
         }
+        ok[j] = good ? 1 : 0;
+        if (!good) {
+          ++dropped;
+          continue;
+        }
+        wa[j] = a.weight[p];
+        wb[j] = b.weight[p];
+        w_old[j] = half.weight[p] + other.weight[p];
+        const double w_total = w_old[j] + w;
+        const double w_half = half.weight[p] + w;
+        f_total[j] = w / w_total;
+        f_half[j] = w / w_half;
+        if (sub) f_sub[j] = w / (sub->weight[p] + w);
       }
-      if (!ok) {
-        ++dropped;
-        continue;
-      }
-      const double w_old = half.weight[p] + other.weight[p];
-      const double w_total = w_old + w;
-      const double w_half = half.weight[p] + w;
       // Features: the half's Welford mean, and M2 over all passes around the full mean (the
       // combination of the halves' means before this pass).
-      auto feature = [&](FeatureSpread& s, std::vector<double> Half::*mean, const Image& img) {
-        for (int c = 0; c < s.channels; ++c) {
-          const std::size_t i = static_cast<std::size_t>(c) * n + p;
-          const double x = sanitize_feature(img.plane(c)[p], sanitized);
-          const double full =
-              w_old > 0.0 ? (a.weight[p] * (a.*mean)[i] + b.weight[p] * (b.*mean)[i]) / w_old : 0.0;
-          const double delta = x - full;
-          s.m2[i] += w * delta * (x - (full + delta * (w / w_total)));
-          double& hm = (half.*mean)[i];
-          hm += (x - hm) * (w / w_half);
+      auto feature = [&](FeatureSpread& sp, std::vector<double> Half::*mean, const Image& img) {
+        for (int c = 0; c < sp.channels; ++c) {
+          const std::size_t at = static_cast<std::size_t>(c) * n + b0;
+          const float* x_in = img.plane(c).data() + b0;
+          const double* am = (a.*mean).data() + at;
+          const double* bm = (b.*mean).data() + at;
+          double* hm = (half.*mean).data() + at;
+          double* m2 = sp.m2.data() + at;
+          for (std::size_t j = 0; j < m; ++j) {
+            if (!ok[j]) continue;
+            const double x = sanitize_feature(x_in[j], sanitized);
+            const double full = w_old[j] > 0.0 ? (wa[j] * am[j] + wb[j] * bm[j]) / w_old[j] : 0.0;
+            const double delta = x - full;
+            m2[j] += w * delta * (x - (full + delta * f_total[j]));
+            hm[j] += (x - hm[j]) * f_half[j];
+          }
         }
       };
       if (layout_.albedo) feature(albedo_, &Half::albedo, pass.albedo);
       if (layout_.normal) feature(normal_, &Half::normal, pass.normal);
       if (layout_.depth) feature(depth_, &Half::depth, pass.depth);
       if (sub) {  // the sub-half's weighted means (features sanitised as above, not recounted)
-        const double w_sub = sub->weight[p] + w;
-        auto mean = [&](std::vector<double>& m, const Image& img, int channels, bool is_feature) {
+        auto mean = [&](std::vector<double>& mv, const Image& img, int channels, bool is_feature) {
           for (int c = 0; c < channels; ++c) {
-            const std::size_t i = static_cast<std::size_t>(c) * n + p;
-            std::size_t ignored = 0;
-            const double x = is_feature ? sanitize_feature(img.plane(c)[p], ignored)
-                                        : static_cast<double>(img.plane(c)[p]);
-            m[i] += (x - m[i]) * (w / w_sub);
+            const std::size_t at = static_cast<std::size_t>(c) * n + b0;
+            const float* x_in = img.plane(c).data() + b0;
+            double* sm = mv.data() + at;
+            for (std::size_t j = 0; j < m; ++j) {
+              if (!ok[j]) continue;
+              std::size_t ignored = 0;
+              const double x =
+                  is_feature ? sanitize_feature(x_in[j], ignored) : static_cast<double>(x_in[j]);
+              sm[j] += (x - sm[j]) * f_sub[j];
+            }
           }
         };
         mean(sub->colour, pass.colour, 3, false);
         if (layout_.albedo) mean(sub->albedo, pass.albedo, 3, true);
         if (layout_.normal) mean(sub->normal, pass.normal, 3, true);
         if (layout_.depth) mean(sub->depth, pass.depth, 1, true);
-        sub->weight[p] = w_sub;
+        for (std::size_t j = 0; j < m; ++j) {
+          if (ok[j]) sub->weight[b0 + j] += w;
+        }
       }
-
-      for (int c = 0; c < 3; ++c) update(half.colour, c, p, n, pass.colour.plane(c)[p], w, w_half);
-      half.weight[p] = w_half;
-      half.count[p] += 1;
+      // The colour's weighted Welford mean and M2 in the pass's half.
+      for (int c = 0; c < 3; ++c) {
+        const std::size_t at = static_cast<std::size_t>(c) * n + b0;
+        const float* x_in = pass.colour.plane(c).data() + b0;
+        double* mean = half.colour.mean.data() + at;
+        double* m2 = half.colour.m2.data() + at;
+        for (std::size_t j = 0; j < m; ++j) {
+          if (!ok[j]) continue;
+          const double x = x_in[j];
+          const double delta = x - mean[j];
+          mean[j] += delta * f_half[j];
+          m2[j] += w * delta * (x - mean[j]);
+        }
+      }
+      for (std::size_t j = 0; j < m; ++j) {
+        if (!ok[j]) continue;
+        half.weight[b0 + j] += w;
+        half.count[b0 + j] += 1;
+      }
       if (layout_.variance) {
         for (int c = 0; c < 3; ++c) {
-          renderer_variance_[static_cast<std::size_t>(c) * n + p] +=
-              w * w * static_cast<double>(pass.variance.plane(c)[p]);
+          const std::size_t at = static_cast<std::size_t>(c) * n + b0;
+          const float* v_in = pass.variance.plane(c).data() + b0;
+          double* rv = renderer_variance_.data() + at;
+          for (std::size_t j = 0; j < m; ++j) {
+            if (ok[j]) rv[j] += w * w * static_cast<double>(v_in[j]);
+          }
         }
       }
     }
@@ -328,32 +374,48 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
     }
   };
 
+  // In blocks of kBlock pixels, the per-pixel terms first, then one plane at a time (as add()).
   parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
-    for (std::size_t p = begin; p < end; ++p) {
-      const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
-      const std::uint32_t k = a.count[p] + b.count[p];
-      passes_p[p] = static_cast<float>(k);
-      if (w <= 0.0) {
-        hole[p] = 1;
-        continue;
-      }
-      for (int c = 0; c < 3; ++c) {
-        const std::size_t i = static_cast<std::size_t>(c) * n + p;
-        const double ma = a.colour.mean[i], mb = b.colour.mean[i];
-        const double mean = (wa * ma + wb * mb) / w;
-        const double d = ma - mb;
-        const double m2 = a.colour.m2[i] + b.colour.m2[i] + d * d * (wa * wb / w);
-        double var = 0.0;
-        if (layout_.variance) {
-          var = renderer_variance_[i] / (w * w);
-        } else if (k >= 2) {
-          var = std::max(m2, 0.0) / (k - 1) / w;
-        } else {
+    std::array<double, kBlock> wa{}, wb{}, wsum{};
+    std::array<std::uint32_t, kBlock> kk{};
+    for (std::size_t b0 = begin; b0 < end; b0 += kBlock) {
+      const std::size_t m = std::min(end - b0, kBlock);
+      for (std::size_t j = 0; j < m; ++j) {
+        const std::size_t p = b0 + j;
+        wa[j] = a.weight[p];
+        wb[j] = b.weight[p];
+        wsum[j] = wa[j] + wb[j];
+        kk[j] = a.count[p] + b.count[p];
+        passes_p[p] = static_cast<float>(kk[j]);
+        if (wsum[j] <= 0.0) {
+          hole[p] = 1;
+        } else if (!layout_.variance && kk[j] < 2) {
           spatial[p] = 1;  // its variance, and so its halves, come from the spatial pass below
         }
-        mean_c[c][p] = to_float(mean);
-        var_c[c][p] = to_float(var);
-        if (!spatial[p]) finish(p, c, var * w);
+      }
+      for (int c = 0; c < 3; ++c) {
+        const std::size_t at = static_cast<std::size_t>(c) * n + b0;
+        const double* ma = a.colour.mean.data() + at;
+        const double* mb = b.colour.mean.data() + at;
+        const double* m2a = a.colour.m2.data() + at;
+        const double* m2b = b.colour.m2.data() + at;
+        for (std::size_t j = 0; j < m; ++j) {
+          const std::size_t p = b0 + j;
+          if (hole[p]) continue;
+          const double w = wsum[j];
+          const double mean = (wa[j] * ma[j] + wb[j] * mb[j]) / w;
+          const double d = ma[j] - mb[j];
+          const double m2 = m2a[j] + m2b[j] + d * d * (wa[j] * wb[j] / w);
+          double var = 0.0;
+          if (layout_.variance) {
+            var = renderer_variance_[at + j] / (w * w);
+          } else if (kk[j] >= 2) {
+            var = std::max(m2, 0.0) / (kk[j] - 1) / w;
+          }
+          mean_c[c][p] = to_float(mean);
+          var_c[c][p] = to_float(var);
+          if (!spatial[p]) finish(p, c, var * w);
+        }
       }
     }
   });
@@ -444,11 +506,12 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
       const std::vector<double>& ma = a.*mean_of;
       const std::vector<double>& mb = b.*mean_of;
       parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
-        for (std::size_t p = begin; p < end; ++p) {
-          const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
-          const std::uint32_t k = a.count[p] + b.count[p];
-          for (int c = 0; c < s.channels; ++c) {
-            const std::size_t i = static_cast<std::size_t>(c) * n + p;
+        for (int c = 0; c < s.channels; ++c) {  // one plane at a time (as add())
+          const std::size_t at = static_cast<std::size_t>(c) * n;
+          for (std::size_t p = begin; p < end; ++p) {
+            const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
+            const std::uint32_t k = a.count[p] + b.count[p];
+            const std::size_t i = at + p;
             const double m = w > 0.0 ? (wa * ma[i] + wb * mb[i]) / w : 0.0;
             mean_f[c][p] = to_float(m);
             var_f[c][p] = k >= 2 ? to_float(std::max(s.m2[i], 0.0) / (k - 1) / w) : 0.0f;

@@ -2,6 +2,7 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <random>
 #include <vector>
@@ -254,6 +255,106 @@ TEST_CASE("quarters: each half split as a frame of only that half's passes would
   for (std::size_t i = 0; i < e.mean.data().size(); ++i) {
     CHECK(e.mean.data()[i] == ep.mean.data()[i]);
     CHECK(e.half_mean[1].data()[i] == ep.half_mean[1].data()[i]);
+  }
+}
+
+TEST_CASE("a frame larger than add()'s blocks equals its rows accumulated alone, to the bit",
+          "[accumulator][blocks]") {
+  // add() and estimate() work in parallel chunks of pixels and, within them, in blocks, one
+  // plane at a time. A pixel's statistics depend on its own samples only (holes and
+  // single-pass pixels aside, which borrow from neighbours and are kept out of this frame), so
+  // every row accumulated as a frame of its own must give the same bits. 131 x 67 = 8777
+  // pixels: more than one chunk, and neither a whole number of chunks nor of blocks.
+  const int W = 131, H = 67;
+  Layout all{true, true, true, true};
+  std::vector<Pass> ps;
+  for (int k = 0; k < 6; ++k) {
+    Pass p = test::make_pass(W, H, 1 + k % 3, 500 + k, all);
+    // Drops in some passes (each pixel keeps >= 4 passes), and features to sanitise.
+    for (int i = 0; i < 40; ++i) {
+      p.colour.plane(i % 3)[static_cast<std::size_t>((k * 997 + i * 211) % (W * H))] = NAN;
+    }
+    p.variance.plane(1)[static_cast<std::size_t>(k * 31 + 7)] = -1.0f;
+    p.depth.plane(0)[static_cast<std::size_t>(k * 53 + 11)] = INFINITY;
+    p.normal.plane(2)[static_cast<std::size_t>(k * 71 + 5)] = NAN;
+    ps.push_back(std::move(p));
+  }
+  auto row_of = [&](const Pass& p, int y) {
+    auto slice = [&](const Image& img) {
+      if (img.empty()) return Image{};
+      Image r(W, 1, img.channels());
+      for (int c = 0; c < img.channels(); ++c) {
+        for (int x = 0; x < W; ++x) r.plane(c)[static_cast<std::size_t>(x)] = img.at(x, y, c);
+      }
+      return r;
+    };
+    Pass r;
+    r.spp = p.spp;
+    r.colour = slice(p.colour);
+    r.albedo = slice(p.albedo);
+    r.normal = slice(p.normal);
+    r.depth = slice(p.depth);
+    r.variance = slice(p.variance);
+    return r;
+  };
+  for (const bool variance : {true, false}) {
+    INFO("renderer variance " << variance);
+    FrameAccumulator whole({.quarters = true});
+    std::size_t dropped = 0, sanitized = 0;
+    for (std::size_t k = 0; k < ps.size(); ++k) {
+      Pass p = ps[k];
+      if (!variance) p.variance = Image{};
+      const AddResult r = whole.add(p, std::to_string(k));
+      dropped += r.dropped_pixels;
+      sanitized += r.sanitized_features;
+    }
+    CHECK(dropped > 200);
+    CHECK(sanitized == 12);
+    const EstimateOptions opts{.quarters = true};
+    const FrameEstimate e = whole.estimate(opts);
+    REQUIRE(e.hole_pixels == 0);
+    REQUIRE(e.spatial_pixels == 0);
+    REQUIRE_FALSE(e.quarter_mean[3].empty());
+    std::size_t compared = 0, row_dropped = 0;
+    for (int y = 0; y < H; ++y) {
+      FrameAccumulator row({.quarters = true});
+      for (std::size_t k = 0; k < ps.size(); ++k) {
+        Pass p = row_of(ps[k], y);
+        if (!variance) p.variance = Image{};
+        row_dropped += row.add(p, std::to_string(k)).dropped_pixels;
+      }
+      const FrameEstimate r = row.estimate(opts);
+      auto same = [&](const Image& a, const Image& b, const char* what) {
+        REQUIRE(a.channels() == b.channels());
+        for (int c = 0; c < a.channels(); ++c) {
+          for (int x = 0; x < W; ++x) {
+            const float u = a.at(x, y, c), v = b.at(x, 0, c);
+            if (std::memcmp(&u, &v, sizeof u) != 0) {
+              FAIL(what << " differs at (" << x << ", " << y << ", " << c << "): " << u << " vs "
+                        << v);
+            }
+            ++compared;
+          }
+        }
+      };
+      same(e.mean, r.mean, "mean");
+      same(e.variance, r.variance, "variance");
+      same(e.passes, r.passes, "passes");
+      same(e.albedo, r.albedo, "albedo");
+      same(e.normal_variance, r.normal_variance, "normal variance");
+      same(e.depth, r.depth, "depth");
+      for (std::size_t h = 0; h < 2; ++h) {
+        same(e.half_mean[h], r.half_mean[h], "half mean");
+        same(e.half_variance[h], r.half_variance[h], "half variance");
+        same(e.half_albedo[h], r.half_albedo[h], "half albedo");
+      }
+      for (std::size_t q = 0; q < 4; ++q) {
+        same(e.quarter_mean[q], r.quarter_mean[q], "quarter mean");
+        same(e.quarter_normal[q], r.quarter_normal[q], "quarter normal");
+      }
+    }
+    CHECK(row_dropped == dropped);
+    CHECK(compared == static_cast<std::size_t>(W) * H * (3 + 3 + 1 + 3 + 3 + 1 + 2 * 9 + 4 * 6));
   }
 }
 

@@ -171,6 +171,8 @@ class FrameAccumulator {
     std::vector<double> m2;
   };
 
+  // check(), returning the pass's fingerprint (PassRecord::fingerprint).
+  std::uint64_t validate(const Pass& pass, const std::string& name) const;
   void initialise(const Pass& pass);
   std::size_t pixels() const { return static_cast<std::size_t>(width_) * height_; }
 
