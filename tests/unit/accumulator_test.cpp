@@ -270,7 +270,8 @@ TEST_CASE("a frame larger than add()'s blocks equals its rows accumulated alone,
   std::vector<Pass> ps;
   for (int k = 0; k < 6; ++k) {
     Pass p = test::make_pass(W, H, 1 + k % 3, 500 + k, all);
-    // Drops in some passes (each pixel keeps >= 4 passes), and features to sanitise.
+    // Drops in some passes (no pixel loses all or all but one: checked below), and features
+    // to sanitise.
     for (int i = 0; i < 40; ++i) {
       p.colour.plane(i % 3)[static_cast<std::size_t>((k * 997 + i * 211) % (W * H))] = NAN;
     }
