@@ -95,11 +95,7 @@ std::size_t FrameAccumulator::state_bytes() const {
   return bytes_per_pixel(layout_, quarters_) * pixels();
 }
 
-void FrameAccumulator::check(const Pass& pass, const std::string& name) const {
-  validate(pass, name);
-}
-
-std::uint64_t FrameAccumulator::validate(const Pass& pass, const std::string& name) const {
+std::uint64_t FrameAccumulator::check(const Pass& pass, const std::string& name) const {
   if (!std::isfinite(pass.spp) || pass.spp <= 0.0) {
     throw InputError(
         InputErrorKind::invalid_value, name,
@@ -184,7 +180,7 @@ void FrameAccumulator::initialise(const Pass& pass) {
 
 AddResult FrameAccumulator::add(const Pass& pass, const std::string& name) {
   PassRecord record;
-  record.fingerprint = validate(pass, name);
+  record.fingerprint = check(pass, name);
   record.name = name;
   record.spp = pass.spp;
   record.half = passes() % 2;
@@ -374,48 +370,32 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
     }
   };
 
-  // In blocks of kBlock pixels, the per-pixel terms first, then one plane at a time (as add()).
   parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
-    std::array<double, kBlock> wa{}, wb{}, wsum{};
-    std::array<std::uint32_t, kBlock> kk{};
-    for (std::size_t b0 = begin; b0 < end; b0 += kBlock) {
-      const std::size_t m = std::min(end - b0, kBlock);
-      for (std::size_t j = 0; j < m; ++j) {
-        const std::size_t p = b0 + j;
-        wa[j] = a.weight[p];
-        wb[j] = b.weight[p];
-        wsum[j] = wa[j] + wb[j];
-        kk[j] = a.count[p] + b.count[p];
-        passes_p[p] = static_cast<float>(kk[j]);
-        if (wsum[j] <= 0.0) {
-          hole[p] = 1;
-        } else if (!layout_.variance && kk[j] < 2) {
-          spatial[p] = 1;  // its variance, and so its halves, come from the spatial pass below
-        }
+    for (std::size_t p = begin; p < end; ++p) {
+      const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
+      const std::uint32_t k = a.count[p] + b.count[p];
+      passes_p[p] = static_cast<float>(k);
+      if (w <= 0.0) {
+        hole[p] = 1;
+        continue;
       }
       for (int c = 0; c < 3; ++c) {
-        const std::size_t at = static_cast<std::size_t>(c) * n + b0;
-        const double* ma = a.colour.mean.data() + at;
-        const double* mb = b.colour.mean.data() + at;
-        const double* m2a = a.colour.m2.data() + at;
-        const double* m2b = b.colour.m2.data() + at;
-        for (std::size_t j = 0; j < m; ++j) {
-          const std::size_t p = b0 + j;
-          if (hole[p]) continue;
-          const double w = wsum[j];
-          const double mean = (wa[j] * ma[j] + wb[j] * mb[j]) / w;
-          const double d = ma[j] - mb[j];
-          const double m2 = m2a[j] + m2b[j] + d * d * (wa[j] * wb[j] / w);
-          double var = 0.0;
-          if (layout_.variance) {
-            var = renderer_variance_[at + j] / (w * w);
-          } else if (kk[j] >= 2) {
-            var = std::max(m2, 0.0) / (kk[j] - 1) / w;
-          }
-          mean_c[c][p] = to_float(mean);
-          var_c[c][p] = to_float(var);
-          if (!spatial[p]) finish(p, c, var * w);
+        const std::size_t i = static_cast<std::size_t>(c) * n + p;
+        const double ma = a.colour.mean[i], mb = b.colour.mean[i];
+        const double mean = (wa * ma + wb * mb) / w;
+        const double d = ma - mb;
+        const double m2 = a.colour.m2[i] + b.colour.m2[i] + d * d * (wa * wb / w);
+        double var = 0.0;
+        if (layout_.variance) {
+          var = renderer_variance_[i] / (w * w);
+        } else if (k >= 2) {
+          var = std::max(m2, 0.0) / (k - 1) / w;
+        } else {
+          spatial[p] = 1;  // its variance, and so its halves, come from the spatial pass below
         }
+        mean_c[c][p] = to_float(mean);
+        var_c[c][p] = to_float(var);
+        if (!spatial[p]) finish(p, c, var * w);
       }
     }
   });
@@ -506,12 +486,11 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
       const std::vector<double>& ma = a.*mean_of;
       const std::vector<double>& mb = b.*mean_of;
       parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
-        for (int c = 0; c < s.channels; ++c) {  // one plane at a time (as add())
-          const std::size_t at = static_cast<std::size_t>(c) * n;
-          for (std::size_t p = begin; p < end; ++p) {
-            const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
-            const std::uint32_t k = a.count[p] + b.count[p];
-            const std::size_t i = at + p;
+        for (std::size_t p = begin; p < end; ++p) {
+          const double wa = a.weight[p], wb = b.weight[p], w = wa + wb;
+          const std::uint32_t k = a.count[p] + b.count[p];
+          for (int c = 0; c < s.channels; ++c) {
+            const std::size_t i = static_cast<std::size_t>(c) * n + p;
             const double m = w > 0.0 ? (wa * ma[i] + wb * mb[i]) / w : 0.0;
             mean_f[c][p] = to_float(m);
             var_f[c][p] = k >= 2 ? to_float(std::max(s.m2[i], 0.0) / (k - 1) / w) : 0.0f;

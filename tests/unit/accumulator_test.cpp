@@ -260,8 +260,8 @@ TEST_CASE("quarters: each half split as a frame of only that half's passes would
 
 TEST_CASE("a frame larger than add()'s blocks equals its rows accumulated alone, to the bit",
           "[accumulator][blocks]") {
-  // add() and estimate() work in parallel chunks of pixels and, within them, in blocks, one
-  // plane at a time. A pixel's statistics depend on its own samples only (holes and
+  // add() works in parallel chunks of pixels and, within them, in blocks, one plane at a
+  // time. A pixel's statistics depend on its own samples only (holes and
   // single-pass pixels aside, which borrow from neighbours and are kept out of this frame), so
   // every row accumulated as a frame of its own must give the same bits. 131 x 67 = 8777
   // pixels: more than one chunk, and neither a whole number of chunks nor of blocks.

@@ -98,10 +98,11 @@ class FrameAccumulator {
   FrameAccumulator() = default;  // the first pass fixes size and layout
   explicit FrameAccumulator(AccumulatorOptions options) : quarters_(options.quarters) {}
 
-  // Validates `pass` against the frame, changing nothing. Throws InputError (subject = name):
-  // size_mismatch, layout_mismatch, duplicate (bit-identical colour to an accepted, non-constant
-  // pass), invalid_value (bad spp, malformed planes).
-  void check(const Pass& pass, const std::string& name) const;
+  // Validates `pass` against the frame, changing nothing, and returns its fingerprint (a hash of
+  // its colour, PassRecord::fingerprint). Throws InputError (subject = name): size_mismatch,
+  // layout_mismatch, duplicate (bit-identical colour to an accepted, non-constant pass),
+  // invalid_value (bad spp, malformed planes).
+  std::uint64_t check(const Pass& pass, const std::string& name) const;
 
   // check() then accumulate. Strong guarantee: if it throws, the state is unchanged.
   AddResult add(const Pass& pass, const std::string& name);
@@ -171,8 +172,6 @@ class FrameAccumulator {
     std::vector<double> m2;
   };
 
-  // check(), returning the pass's fingerprint (PassRecord::fingerprint).
-  std::uint64_t validate(const Pass& pass, const std::string& name) const;
   void initialise(const Pass& pass);
   std::size_t pixels() const { return static_cast<std::size_t>(width_) * height_; }
 
