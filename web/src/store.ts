@@ -51,6 +51,23 @@ export function frameAfterEvent(prev: FrameStatus | undefined, e: FrameEvent): F
   };
 }
 
+/**
+ * One frame's REST answers (status and history) merged with what events already brought while
+ * they were in flight: a frame's versions only grow, so the newer status wins, and the history
+ * gains the versions the answer was too early for.
+ */
+export function mergeFrameSnapshot(
+  status: FrameStatus,
+  versions: Version[],
+  known: FrameStatus | undefined,
+  knownVersions: Version[] = [],
+): { status: FrameStatus; versions: Version[] } {
+  const list = [...versions];
+  const last = list.length ? list[list.length - 1].version : 0;
+  for (const v of knownVersions) if (v.version > last) mergeVersion(list, v);
+  return { status: known && known.version > status.version ? { ...status, ...known } : status, versions: list };
+}
+
 export interface Throughput {
   passesPerMin: number;
   updatesPerMin: number;
@@ -173,7 +190,11 @@ export class Store {
     return { job, frames: new Map(), versions: new Map(), quarantined: [], errors: [], historyLoaded: false };
   }
 
-  /** Replaces a job's frames with a snapshot; returns the frames whose status changed. */
+  /**
+   * Replaces a job's frames with a snapshot; returns the frames whose status changed. A frame's
+   * versions only grow, so a snapshot older than an event already applied (the request was answered
+   * before the version was published, the event arrived first) keeps the event's status.
+   */
   setFrames(jobId: string, frames: FrameStatus[]): number[] {
     const d = this.jobs.get(jobId);
     if (!d) return [];
@@ -182,6 +203,7 @@ export class Store {
     for (const f of frames) {
       seen.add(f.frame);
       const old = d.frames.get(f.frame);
+      if (old && old.version > f.version) continue;
       if (
         !old ||
         old.version !== f.version ||

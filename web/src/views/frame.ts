@@ -3,6 +3,7 @@
 // over time against the plain render's, and its version history.
 import type { ImageRendition } from '../api';
 import { FrameBatcher } from '../batch';
+import { mergeFrameSnapshot } from '../store';
 import { decades, el, fixed, sci } from '../format';
 import { errorOf, type ColourMaps, type EstimatedError, type FrameEvent, type FrameStatus, type Version } from '../types';
 import { FrameChart, type FrameAxis } from './charts';
@@ -191,8 +192,10 @@ export class FrameView implements View {
       { label: job?.name ?? this.jobId, href: `#/job/${this.jobId}` },
       { label: `frame ${this.frameNo}`, href: `#/job/${this.jobId}/frame/${this.frameNo}` },
     ];
-    this.status = status;
-    this.versions = versions;
+    const d = store.jobs.get(this.jobId);
+    const merged = mergeFrameSnapshot(status, versions, d?.frames.get(this.frameNo), d?.versions.get(this.frameNo));
+    this.status = merged.status;
+    this.versions = merged.versions;
     this.renderInfo();
     this.renderChart();
     this.renderHistory();

@@ -1,7 +1,7 @@
 import { describe, expect, it } from 'vitest';
 import { FrameBatcher } from '../../src/batch';
 import { frameSeries } from '../../src/series';
-import { Store, frameAfterEvent, mergeVersion, shotSpread, throughput } from '../../src/store';
+import { Store, frameAfterEvent, mergeFrameSnapshot, mergeVersion, shotSpread, throughput } from '../../src/store';
 import type { FrameEvent, Job, Version } from '../../src/types';
 
 const job: Job = { id: 'j1', name: 'shot', state: 'active', created: '2026-01-01T00:00:00Z', output: { dir: '/o' } };
@@ -41,6 +41,20 @@ describe('frameAfterEvent', () => {
   });
 });
 
+describe('mergeFrameSnapshot', () => {
+  const st = (version: number, pending: boolean) => ({ job: 'j1', frame: 2, passes: version, spp: 4 * version, version, updated: iso(version), estimated_mse: 0.1, pending });
+  it('keeps the versions events brought while the answers were in flight', () => {
+    const m = mergeFrameSnapshot(st(1, true), [v(1, 1, 4, 0.2, 1)], st(2, false), [v(2, 2, 8, 0.1, 2)]);
+    expect(m.status).toMatchObject({ version: 2, pending: false });
+    expect(m.versions.map((x) => x.version)).toEqual([1, 2]);
+  });
+  it('takes the answers when they are as new as the events', () => {
+    const m = mergeFrameSnapshot(st(2, true), [v(1, 1, 4, 0.2, 1), v(2, 2, 8, 0.1, 2)], st(2, false), [v(2, 2, 8, 0.3, 2)]);
+    expect(m.status).toMatchObject({ version: 2, pending: true });
+    expect(m.versions.map((x) => x.estimated_mse)).toEqual([0.2, 0.1]);
+  });
+});
+
 describe('Store', () => {
   it('applies events to known jobs only, and replays change nothing', () => {
     const s = new Store();
@@ -59,6 +73,20 @@ describe('Store', () => {
     expect(s.setFrames('j1', [f(1, 1), f(2, 1)]).sort()).toEqual([1, 2]);
     expect(s.setFrames('j1', [f(1, 1), f(2, 2)])).toEqual([2]);
     expect(s.setFrames('j1', [f(2, 2)])).toEqual([1]);
+  });
+
+  it('keeps an event newer than a snapshot that was answered before it', () => {
+    const s = new Store();
+    s.setJobs([job]);
+    // the page asked for the frames while frame 5 ran (version 0, pending), then its version-1
+    // event arrived before the answer did
+    s.applyFrameEvent(ev(5, v(1, 1, 4, 0.2, 1)));
+    const stale = { job: 'j1', frame: 5, passes: 0, spp: 0, version: 0, updated: '', estimated_mse: 0, pending: true };
+    expect(s.setFrames('j1', [stale])).toEqual([]);
+    expect(s.jobs.get('j1')!.frames.get(5)).toMatchObject({ version: 1, pending: false });
+    // a snapshot at the same version is the daemon's newer word on it: more passes wait
+    expect(s.setFrames('j1', [{ ...stale, version: 1, passes: 1, spp: 4, pending: true }])).toEqual([5]);
+    expect(s.jobs.get('j1')!.frames.get(5)!.pending).toBe(true);
   });
 
   it('takes a converged event for a known frame', () => {
