@@ -62,6 +62,8 @@ export class FrameView implements View {
   private resizeObs: ResizeObserver;
   private origin = 0;
   private pinned: number | null = null; // an older version shown instead of the latest
+  private tick: number;
+  private refreshing = false;
 
   constructor(
     private ctx: Ctx,
@@ -153,6 +155,7 @@ export class FrameView implements View {
     this.dragToPan();
     this.resizeObs = new ResizeObserver(() => this.draw());
     this.resizeObs.observe(this.stage);
+    this.tick = window.setInterval(() => void this.refreshPending(), 5000);
   }
 
   private select(id: string, value: string): HTMLSelectElement {
@@ -447,7 +450,25 @@ export class FrameView implements View {
     this.stage.addEventListener('pointercancel', end);
   }
 
+  /** As JobView's: a frame shown as processing is asked about again until it is idle. */
+  private async refreshPending(): Promise<void> {
+    if (!this.status?.pending || this.refreshing) return;
+    this.refreshing = true;
+    try {
+      const st = await this.ctx.api.frame(this.jobId, this.frameNo);
+      if (this.status && st.version >= this.status.version) {
+        this.status = st;
+        this.renderInfo();
+      }
+    } catch {
+      // asked again at the next tick
+    } finally {
+      this.refreshing = false;
+    }
+  }
+
   destroy(): void {
+    window.clearInterval(this.tick);
     this.chart?.destroy();
     this.resizeObs.disconnect();
     window.clearTimeout(this.exposureTimer);

@@ -143,6 +143,7 @@ export class JobView implements View {
   private focused = -1;
   private tick: number;
   private slowTimer: number | undefined;
+  private refreshing = false;
 
   constructor(
     private ctx: Ctx,
@@ -177,7 +178,28 @@ export class JobView implements View {
     this.el.append(this.header, el('div', { class: 'two' }, shot, this.problems), gridPanel);
     this.grid.addEventListener('keydown', (e) => this.key(e));
     this.el.addEventListener('state-changed', () => this.renderHeader());
-    this.tick = window.setInterval(() => this.renderHeader(), 5000);
+    this.tick = window.setInterval(() => {
+      this.renderHeader();
+      void this.refreshPending();
+    }, 5000);
+  }
+
+  /**
+   * Asks the daemon again about frames shown as pending. A frame stays pending (its worker busy)
+   * for a moment after its version's event, and no event says when that ends: a snapshot taken in
+   * that moment would leave the tile pending for good.
+   */
+  private async refreshPending(): Promise<void> {
+    const d = this.data;
+    if (!d || this.refreshing || ![...d.frames.values()].some((f) => f.pending)) return;
+    this.refreshing = true;
+    try {
+      for (const f of this.ctx.store.setFrames(this.jobId, await this.ctx.api.frames(this.jobId))) this.batch.mark(f);
+    } catch {
+      // the next tick asks again; the connection indicator shows a daemon that is away
+    } finally {
+      this.refreshing = false;
+    }
   }
 
   private get data(): JobData | undefined {
