@@ -160,8 +160,11 @@ struct PartChunks {
 // chunk read at a wrong offset as zeros without an error (fuzz/findings.md, row 8), and a pass of
 // zeros accumulated would darken its frame for good; a half-written file (offsets still 0) is
 // refused here the same way, as unreadable, and retried.
+// The offsets of a single part go to `keep` when given.
 void check_chunk_tables(const ByteSource& src, const std::string& name, std::uint64_t tables,
-                        const std::vector<PartChunks>& parts, bool multipart) {
+                        const std::vector<PartChunks>& parts, bool multipart,
+                        std::vector<std::uint64_t>* keep) {
+  if (keep) keep->reserve(static_cast<std::size_t>(parts.front().count));
   std::uint64_t total = 0;
   for (const PartChunks& p : parts) total += p.count;
   const std::uint64_t end = tables + 8 * total, size = src.size();
@@ -207,6 +210,7 @@ void check_chunk_tables(const ByteSource& src, const std::string& name, std::uin
                  (parts.size() > 1 ? " of part " + std::to_string(k) : "") +
                  " is not where the offset table says (" + std::to_string(offset) + ")");
       }
+      if (keep) keep->push_back(offset);
     }
   }
 }
@@ -247,7 +251,7 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
     std::optional<int> compression;
     std::optional<std::pair<std::uint32_t, std::uint32_t>> tiles;
     std::optional<std::int32_t> chunk_count;
-    bool tiled = (version & kTiled) != 0, have_channels = false;
+    bool tiled = (version & kTiled) != 0, have_channels = false, layout_attribute = false;
     for (int attributes = 0;; ++attributes) {
       if (c.peek() == 0) {  // end of this header
         ++c.pos;
@@ -326,7 +330,10 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
             fail(InputErrorKind::too_large, name,
                  "more than " + std::to_string(lim.max_channels) + " channels");
           }
-          if (attr == "channels") part.channels.push_back(std::move(ch));
+          if (attr == "channels") {
+            part.channels.push_back(std::move(ch));
+            part.pixel_types.push_back(pixel_type);
+          }
         }
       } else if ((attr == "dataWindow" || attr == "displayWindow") && type == "box2i") {
         expect_size(16);
@@ -339,7 +346,9 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
       } else if (attr == "compression" && type == "compression") {
         expect_size(1);
         compression = c.byte();
-      } else if (attr == "tiles" && type == "tiledesc") {
+      }
+      if (attr == "tiles" || attr == "type" || attr == "chunkCount") layout_attribute = true;
+      if (attr == "tiles" && type == "tiledesc") {
         expect_size(9);
         const std::uint32_t tx = c.u32(), ty = c.u32();
         tiles = {tx, ty};
@@ -374,6 +383,9 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
     part.width = static_cast<int>(w);
     part.height = static_cast<int>(h);
     part.windows_equal = *data == *display;
+    part.compression = *compression;
+    part.ymin = data->ymin;
+    part.plain_scanline = !multipart && !tiled && !layout_attribute;
     std::uint64_t chunks = 0;
     if (tiled) {
       if (!tiles || tiles->first == 0 || tiles->second == 0) {
@@ -415,7 +427,8 @@ HeaderSummary inspect_exr(const ByteSource& src, const std::string& name, const 
              std::to_string(c.remaining()) + " bytes after the header");
   }
   out.header_bytes = c.pos + 8 * chunks_total;
-  check_chunk_tables(src, name, c.pos, part_chunks, multipart);
+  check_chunk_tables(src, name, c.pos, part_chunks, multipart,
+                     out.parts.front().plain_scanline ? &out.parts.front().chunk_offsets : nullptr);
   return out;
 }
 
@@ -489,7 +502,11 @@ HeaderSummary inspect_radiance(const ByteSource& src, const std::string& name,
   }
   HeaderSummary out;
   out.format = FileFormat::radiance;
-  out.parts.push_back({static_cast<int>(w), static_cast<int>(h), true, {"R", "G", "B"}});
+  HeaderPart part;
+  part.width = static_cast<int>(w);
+  part.height = static_cast<int>(h);
+  part.channels = {"R", "G", "B"};
+  out.parts.push_back(std::move(part));
   out.header_bytes = pos;
   return out;
 }

@@ -5,6 +5,7 @@
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -19,6 +20,7 @@
 #include <sstream>
 #include <system_error>
 
+#include "exr_chunks.hpp"
 #include "fail.hpp"
 #include "proden/error.hpp"
 #include "proden/io/text.hpp"
@@ -353,6 +355,12 @@ std::string PassInfo::to_string() const {
 
 namespace {
 
+// The file's bytes and header walk, for the chunk decoder (none: OpenImageIO decodes).
+struct ChunkSource {
+  const ByteSource* src = nullptr;
+  const HeaderSummary* summary = nullptr;
+};
+
 // Reads the named channels (all present in `h`) as planar images, one per requested set. Channels
 // are read as runs of neighbouring channel indices of a subimage (OIIO converts half to float),
 // one run at a time. A scanline run is decoded in strips of about ReadOptions::strip_bytes (a tiled
@@ -360,12 +368,21 @@ namespace {
 // ceiling (32 MiB), so the daemon's heap reuses it: a whole 1080p run (100 MB for a 12-channel
 // Cycles pass) was a fresh mapping that the kernel faulted in and zeroed on every read
 // (bench/RESULTS.md, "Reading and writing in strips").
+//
+// A file the chunk decoder reads (exr_chunks.hpp; `chunks`, when ReadOptions::exr_decoder allows
+// it) is decoded by it instead, each chunk once for all sets, straight into the planes.
 class ChannelLoader {
  public:
   static constexpr int kMergeGap = 32;
   ChannelLoader(OIIO::ImageInput& in, const Header& h, const std::string& path,
-                std::vector<std::vector<std::string>> sets, std::uint64_t strip_bytes)
-      : in_(in), h_(h), path_(path), sets_(std::move(sets)), strip_bytes_(strip_bytes) {
+                std::vector<std::vector<std::string>> sets, std::uint64_t strip_bytes,
+                ChunkSource chunks = {})
+      : in_(in),
+        h_(h),
+        path_(path),
+        sets_(std::move(sets)),
+        strip_bytes_(strip_bytes),
+        chunks_(chunks) {
     std::map<int, std::set<int>> used;
     for (const auto& set : sets_) {
       for (const auto& n : set) {
@@ -399,6 +416,10 @@ class ChannelLoader {
       run = std::max(run, static_cast<std::uint64_t>(rows_per_read(r)) *
                               static_cast<std::uint64_t>(h_.width) * row_floats(r) * sizeof(float));
     }
+    if (chunk_route()) {  // each decoding thread's scratch instead
+      run = detail::chunk_scratch_bytes(chunks_.summary->parts.front()) *
+            static_cast<std::uint64_t>(tbb::this_task_arena::max_concurrency());
+    }
     return resident + planes + run;
   }
 
@@ -408,6 +429,7 @@ class ChannelLoader {
       out.push_back(set.empty() ? Image()
                                 : Image(h_.width, h_.height, static_cast<int>(set.size())));
     }
+    if (chunk_targets(out)) return out;
     std::vector<float> buf;
     for (const auto& r : runs_) {
       const int rows = rows_per_read(r);
@@ -435,6 +457,35 @@ class ChannelLoader {
   struct Run {
     int subimage, begin, end;  // channels [begin, end)
   };
+  // Decodes with the chunk decoder when chunk_route(); false (nothing written) otherwise.
+  bool chunk_targets(std::vector<Image>& out) const {
+    if (!chunk_route()) return false;
+    const HeaderPart& part = chunks_.summary->parts.front();
+    std::vector<detail::ChunkTarget> targets;
+    for (std::size_t k = 0; k < sets_.size(); ++k) {
+      for (std::size_t c = 0; c < sets_[k].size(); ++c) {
+        const auto it = std::find(part.channels.begin(), part.channels.end(), sets_[k][c]);
+        targets.push_back({static_cast<int>(it - part.channels.begin()),
+                           out[k].plane(static_cast<int>(c)).data()});
+      }
+    }
+    detail::decode_chunks(*chunks_.src, part, path_, targets);
+    return true;
+  }
+  // Whether the chunk decoder reads this file and knows every wanted channel by name.
+  bool chunk_route() const {
+    if (!chunks_.src || !chunks_.summary || !detail::chunk_decodes(*chunks_.summary)) return false;
+    const HeaderPart& part = chunks_.summary->parts.front();
+    if (part.width != h_.width || part.height != h_.height || h_.subimages != 1) return false;
+    for (const auto& set : sets_) {
+      for (const auto& n : set) {
+        if (std::find(part.channels.begin(), part.channels.end(), n) == part.channels.end()) {
+          return false;
+        }
+      }
+    }
+    return true;
+  }
   std::uint64_t pixels() const {
     return static_cast<std::uint64_t>(h_.width) * static_cast<std::uint64_t>(h_.height);
   }
@@ -472,6 +523,7 @@ class ChannelLoader {
   std::vector<std::vector<std::string>> sets_;
   std::vector<Run> runs_;
   std::uint64_t strip_bytes_;
+  ChunkSource chunks_;
 };
 
 void check_budget(std::uint64_t need, const std::string& path, const ReadLimits& limits) {
@@ -480,6 +532,12 @@ void check_budget(std::uint64_t need, const std::string& path, const ReadLimits&
          "reading it needs about " + std::to_string(need >> 20) + " MiB, above the per-read " +
              "budget of " + std::to_string(limits.max_memory_bytes >> 20) + " MiB");
   }
+}
+
+// What the chunk decoder needs, when the options let it decode.
+ChunkSource chunk_route(const ByteSource& src, const Opened& op, const ReadOptions& o) {
+  if (o.exr_decoder != ExrDecoder::automatic) return {};
+  return {&src, &op.summary};
 }
 
 // Opens, walks and resolves `src`; the loader is planned and its budget checked.
@@ -505,7 +563,8 @@ Prepared prepare(const ByteSource& src, const std::string& name, const ReadOptio
   Prepared p{open_source(src, name, options), {}, {}, {}};
   p.h = read_header(*p.op.in, p.op.summary, name, options.limits);
   p.r = resolve(p.h, name, options, p.info);
-  ChannelLoader plan(*p.op.in, p.h, name, channel_sets(p.r, aovs), options.strip_bytes);
+  ChannelLoader plan(*p.op.in, p.h, name, channel_sets(p.r, aovs), options.strip_bytes,
+                     chunk_route(src, p.op, options));
   // Counted as if the file were in memory: callers reading through a descriptor use less.
   p.info.read_bytes = plan.peak_bytes(src.size());
   check_budget(p.info.read_bytes, name, options.limits);
@@ -540,9 +599,9 @@ PassInfo probe_pass(const std::string& path, const ReadOptions& options) {
 Pass read_pass(const ByteSource& source, const std::string& name, const ReadOptions& options,
                PassInfo* info_out, std::vector<AovChannel>* aovs) {
   Prepared p = prepare(source, name, options, aovs != nullptr);
-  auto images =
-      ChannelLoader(*p.op.in, p.h, name, channel_sets(p.r, aovs != nullptr), options.strip_bytes)
-          .load();
+  auto images = ChannelLoader(*p.op.in, p.h, name, channel_sets(p.r, aovs != nullptr),
+                              options.strip_bytes, chunk_route(source, p.op, options))
+                    .load();
   Pass pass;
   pass.colour = std::move(images[0]);
   pass.albedo = std::move(images[1]);
@@ -585,7 +644,8 @@ std::vector<Image> read_layers(const ByteSource& source, const std::string& name
       sets.emplace_back();
     }
   }
-  ChannelLoader loader(*op.in, h, name, sets, options.strip_bytes);
+  ChannelLoader loader(*op.in, h, name, sets, options.strip_bytes,
+                       chunk_route(source, op, options));
   check_budget(loader.peak_bytes(source.size()), name, options.limits);
   return loader.load();
 }

@@ -3,8 +3,13 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <random>
 
+#include "../../io/src/exr_chunks.hpp"
 #include "../../io/src/strips.hpp"
 #include "proden/error.hpp"
 #include "proden/io/image_writer.hpp"
@@ -30,6 +35,30 @@ void require_close(const Image& a, const Image& b, double rel, double floor = 1e
 
 std::string samples(const std::string& rel) {
   return std::string(PRODEN_SAMPLES_DIR) + "/" + rel;
+}
+
+std::vector<std::uint8_t> file_bytes(const std::string& f) {
+  std::ifstream in(f, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+io::HeaderSummary walk(const std::vector<std::uint8_t>& bytes, const std::string& name) {
+  return io::inspect_header(io::MemorySource(bytes), name, {});
+}
+
+// Every value of the two images has the same bits.
+void require_same_bits(const Image& a, const Image& b) {
+  REQUIRE(a.same_size(b));
+  REQUIRE(a.channels() == b.channels());
+  REQUIRE(std::memcmp(a.data().data(), b.data().data(), a.data().size() * sizeof(float)) == 0);
+}
+
+void require_same_pass(const Pass& a, const Pass& b) {
+  require_same_bits(a.colour, b.colour);
+  require_same_bits(a.albedo, b.albedo);
+  require_same_bits(a.normal, b.normal);
+  require_same_bits(a.depth, b.depth);
+  require_same_bits(a.variance, b.variance);
 }
 
 }  // namespace
@@ -234,6 +263,163 @@ TEST_CASE("scanlines read in strips of any height equal one whole read", "[io]")
       }
     }
   }
+}
+
+TEST_CASE("the chunk decoder reads what OpenEXR's C++ library reads, bit for bit", "[io][chunks]") {
+  // Every compression a pass may come in, float and half: files the chunk decoder takes (NONE,
+  // ZIPS, ZIP) and those left to OpenImageIO must both give the library's floats.
+  test::TempDir dir;
+  const Layout feats{true, true, true, false};
+  const Pass p = test::make_pass(70, 45, 4, 11, feats);
+  io::ReadOptions library;
+  library.exr_decoder = io::ExrDecoder::library;
+  for (const char* compression : {"none", "rle", "zips", "zip", "piz", "pxr24", "b44", "dwaa"}) {
+    for (bool half : {false, true}) {
+      INFO(compression << (half ? " half" : " float"));
+      const std::string f = dir.file(std::string(compression) + (half ? "_h.exr" : "_f.exr"));
+      test::write_generic_exr(f, p, half, compression);
+      const std::string c = compression;
+      CHECK(io::detail::chunk_decodes(walk(file_bytes(f), f)) ==
+            (c == "none" || c == "zips" || c == "zip"));
+      const Pass reference = io::read_pass(f, library);
+      REQUIRE(reference.layout() == feats);
+      require_same_pass(io::read_pass(f), reference);
+      // From memory, as the daemon reads a pass it has hashed.
+      const auto bytes = file_bytes(f);
+      require_same_pass(io::read_pass(io::MemorySource(bytes), f, {}), reference);
+    }
+  }
+  // Real renders: Cycles (ZIP, float and half) and POV-Ray.
+  for (const char* rel : {"renders/cornell/pass_00.exr", "renders/textured_dof/pass_00.exr",
+                          "renders/povray/pass_00.exr"}) {
+    INFO(rel);
+    REQUIRE(io::detail::chunk_decodes(walk(file_bytes(samples(rel)), rel)));
+    std::vector<AovChannel> a, b;
+    require_same_pass(io::read_pass(samples(rel), {}, nullptr, &a),
+                      io::read_pass(samples(rel), library, nullptr, &b));
+    REQUIRE(a.size() == b.size());
+    for (std::size_t k = 0; k < a.size(); ++k) require_same_bits(a[k].plane, b[k].plane);
+  }
+  // Layers of a published frame (read_layers), one channel wanted three times (a lone Y).
+  {
+    Image y(33, 17, 1);
+    for (std::size_t i = 0; i < y.data().size(); ++i) y.data()[i] = 0.25f * static_cast<float>(i);
+    std::vector<io::NamedChannel> ch;
+    io::add_layer(ch, "", Image(33, 17, 3, 0.5f), "RGB");
+    io::add_layer(ch, "alpha.", y, "Y");
+    const std::string f = dir.file("layers.exr");
+    io::write_image(f, 33, 17, ch, {});
+    REQUIRE(io::detail::chunk_decodes(walk(file_bytes(f), f)));
+    const auto got = io::read_layers(f, {"result", "alpha"}, {});
+    const auto want = io::read_layers(f, {"result", "alpha"}, library);
+    require_same_bits(got[0], want[0]);
+    require_same_bits(got[1], want[1]);
+    for (int c = 0; c < 3; ++c) {
+      REQUIRE(std::memcmp(got[1].plane(c).data(), y.data().data(), y.data().size() * 4) == 0);
+    }
+  }
+}
+
+TEST_CASE("the chunk decoder reads chunks stored uncompressed and refuses corrupt ones",
+          "[io][chunks]") {
+  // Noise does not deflate: OpenEXR then stores a ZIP chunk as it is, which must be copied, not
+  // inflated. The test checks that the file really holds such chunks.
+  test::TempDir dir;
+  const int W = 64, H = 40;
+  std::mt19937 rng(7);
+  Image noise(W, H, 3);
+  for (float& v : noise.data()) {
+    // random sign and mantissa, an exponent of a finite number
+    const auto bits =
+        static_cast<std::uint32_t>((rng() & 0x807FFFFFu) | ((1u + rng() % 254u) << 23));
+    std::memcpy(&v, &bits, 4);
+  }
+  std::vector<io::NamedChannel> ch;
+  io::add_layer(ch, "", noise, "RGB");
+  io::WriteOptions o;
+  o.compression = "zip";
+  const std::string f = dir.file("noise.exr");
+  io::write_image(f, W, H, ch, o);
+  auto bytes = file_bytes(f);
+  const io::HeaderSummary h = walk(bytes, f);
+  REQUIRE(io::detail::chunk_decodes(h));
+  const auto& offsets = h.parts.front().chunk_offsets;
+  REQUIRE(offsets.size() == 3);  // 16, 16 and 8 lines
+  int stored = 0;
+  for (std::size_t k = 0; k < offsets.size(); ++k) {
+    std::int32_t size = 0;
+    std::memcpy(&size, bytes.data() + offsets[k] + 4, 4);
+    stored += size == (k < 2 ? 16 : 8) * W * 3 * 4;
+  }
+  REQUIRE(stored > 0);
+  io::ReadOptions library;
+  library.exr_decoder = io::ExrDecoder::library;
+  require_same_bits(io::read_pass(f).colour, io::read_pass(f, library).colour);
+  require_same_bits(io::read_pass(f).colour, noise);
+
+  // A compressed chunk with a byte changed inside its data, and one that claims more bytes than
+  // its lines hold: refused as unreadable, naming the file.
+  const std::string g = dir.file("flat.exr");
+  {
+    std::vector<io::NamedChannel> flat;
+    Image ramp(W, H, 3);
+    for (std::size_t i = 0; i < ramp.data().size(); ++i)
+      ramp.data()[i] = static_cast<float>(i % 97);
+    io::add_layer(flat, "", ramp, "RGB");
+    io::write_image(g, W, H, flat, o);
+  }
+  const auto good = file_bytes(g);
+  const auto gh = walk(good, g);
+  REQUIRE(io::detail::chunk_decodes(gh));
+  const std::uint64_t first = gh.parts.front().chunk_offsets.front();
+  std::int32_t size = 0;
+  std::memcpy(&size, good.data() + first + 4, 4);
+  REQUIRE(size < 16 * W * 3 * 4);  // compressed
+  auto bad = good;
+  bad[first + 8 + static_cast<std::size_t>(size) / 2] ^= 0x5A;
+  auto too_big = good;
+  const std::int32_t more = 16 * W * 3 * 4 + 1;
+  std::memcpy(too_big.data() + first + 4, &more, 4);
+  for (const auto* b : {&bad, &too_big}) {
+    try {
+      (void)io::read_pass(io::MemorySource(*b), "bad.exr", {});
+      FAIL("a corrupt chunk was read");
+    } catch (const InputError& e) {
+      CHECK(e.kind() == InputErrorKind::unreadable);
+      CHECK_THAT(std::string(e.what()), Contains("bad.exr"));
+    }
+  }
+}
+
+TEST_CASE("the chunk decoder's scratch counts against the read budget", "[io][chunks]") {
+  // A chunk holds every channel of its lines, wanted or not: 63 channels of which the colour is
+  // read. Each decoding thread holds three chunks' worth (stored, inflated, reordered).
+  test::TempDir dir;
+  const int W = 512, H = 32;
+  std::vector<io::NamedChannel> ch;
+  const Image flat(W, H, 3, 0.5f);
+  io::add_layer(ch, "", flat, "RGB");
+  for (int k = 0; k < 20; ++k) io::add_layer(ch, "aux" + std::to_string(k) + ".", flat, "RGB");
+  const std::string f = dir.file("wide.exr");
+  io::write_image(f, W, H, ch, {});
+  const auto bytes = file_bytes(f);
+  const auto h = walk(bytes, f);
+  REQUIRE(io::detail::chunk_decodes(h));
+  REQUIRE(io::detail::chunk_scratch_bytes(h.parts.front()) == 3u * 16 * W * 63 * 4);
+  io::ReadOptions o;
+  o.features = false;
+  o.limits.max_memory_bytes = 3 << 20;  // the library's strip fits, one thread's scratch does not
+  io::ReadOptions library = o;
+  library.exr_decoder = io::ExrDecoder::library;
+  const Pass ref = io::read_pass(f, library);
+  try {
+    (void)io::read_pass(f, o);
+    FAIL("read beyond the budget");
+  } catch (const InputError& e) {
+    CHECK(e.kind() == InputErrorKind::too_large);
+  }
+  o.limits.max_memory_bytes = 256 << 20;
+  require_same_bits(io::read_pass(f, o).colour, ref.colour);
 }
 
 TEST_CASE("real Blender Cycles pass from samples/", "[io][real]") {

@@ -54,7 +54,8 @@ Pass make_pass(int width, int height, double spp, std::uint64_t seed, Layout lay
   return p;
 }
 
-void write_generic_exr(const std::string& path, const Pass& pass, bool half) {
+void write_generic_exr(const std::string& path, const Pass& pass, bool half,
+                       const std::string& compression) {
   std::vector<io::NamedChannel> ch;
   io::add_layer(ch, "", pass.colour);
   if (!pass.albedo.empty()) io::add_layer(ch, "Albedo.", pass.albedo);
@@ -63,6 +64,7 @@ void write_generic_exr(const std::string& path, const Pass& pass, bool half) {
   if (!pass.variance.empty()) io::add_layer(ch, "Variance.", pass.variance);
   io::WriteOptions o;
   o.half = half;
+  o.compression = compression;
   io::write_image(path, pass.width(), pass.height(), ch, o);
 }
 

@@ -29,7 +29,8 @@ Pass make_pass(int width, int height, double spp, std::uint64_t seed, Layout lay
                float sigma = 0.1f);
 
 // Writes `pass` as a generic EXR (R,G,B, Albedo.*, Normal.*, Depth.Z, Variance.*).
-void write_generic_exr(const std::string& path, const Pass& pass, bool half = false);
+void write_generic_exr(const std::string& path, const Pass& pass, bool half = false,
+                       const std::string& compression = "zip");
 
 // Copies the first `bytes` bytes of `from` to `to`.
 void truncate_copy(const std::string& from, const std::string& to, std::uintmax_t bytes);

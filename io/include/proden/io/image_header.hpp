@@ -41,6 +41,15 @@ struct HeaderPart {
   int width = 0, height = 0;  // data window
   bool windows_equal = true;  // data window == display window
   std::vector<std::string> channels;
+  // OpenEXR only: the compression's code (0 NONE, 1 RLE, 2 ZIPS, 3 ZIP, 4 PIZ, ... 9 DWAB), each
+  // channel's pixel type (0 UINT, 1 HALF, 2 FLOAT; as `channels`), the data window's first line.
+  int compression = 0;
+  std::vector<int> pixel_types;
+  int ymin = 0;
+  // A single-part scanline EXR that declares no `tiles`, `type` or `chunkCount` (what Blender and
+  // POV-Ray write): its chunks' offsets, each checked to name its chunk (io/exr_chunks.hpp).
+  bool plain_scanline = false;
+  std::vector<std::uint64_t> chunk_offsets;
 };
 
 struct HeaderSummary {

@@ -18,6 +18,12 @@
 
 namespace proden::io {
 
+// Who decodes an OpenEXR file's pixels. `automatic`: proden's chunk decoder (zlib, for plain
+// single-part scanline NONE/ZIPS/ZIP files with HALF and FLOAT channels: what Blender and POV-Ray
+// write) where it applies, OpenImageIO (OpenEXR's C++ library) elsewhere. `library`: OpenImageIO
+// for every file, the reference the tests and benchmarks compare against.
+enum class ExrDecoder { automatic, library };
+
 struct ReadOptions {
   Renderer renderer = Renderer::automatic;
   std::optional<double> spp;  // used when the file does not carry its sample count
@@ -31,6 +37,7 @@ struct ReadOptions {
   // Scanline files are decoded this many bytes of interleaved channels at a time (whole when
   // tiled): a read's peak memory is its output planes plus one strip.
   std::uint64_t strip_bytes = std::uint64_t{16} << 20;
+  ExrDecoder exr_decoder = ExrDecoder::automatic;
 };
 
 enum class SppSource { header, option, assumed };

@@ -1,0 +1,163 @@
+#include "exr_chunks.hpp"
+
+#include <Imath/half.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+#include <zlib.h>
+
+#include <algorithm>
+#include <bit>
+#include <cstring>
+#include <stdexcept>
+
+#include "fail.hpp"
+
+namespace proden::io::detail {
+namespace {
+
+static_assert(std::endian::native == std::endian::little,
+              "OpenEXR stores little-endian values: the decoder copies them as they are");
+
+constexpr int kNone = 0, kZips = 2, kZip = 3;  // OpenEXR's compression codes
+constexpr int kHalf = 1, kFloat = 2;           // and pixel types
+
+int lines_per_chunk(int compression) {
+  return compression == kZip ? 16 : 1;
+}
+
+std::uint64_t line_bytes(const HeaderPart& part) {
+  std::uint64_t n = 0;
+  for (const int t : part.pixel_types)
+    n += static_cast<std::uint64_t>(part.width) * (t == kHalf ? 2 : 4);
+  return n;
+}
+
+// The scratch of one thread: a chunk as stored, inflated, and reordered.
+struct Scratch {
+  std::vector<unsigned char> packed, inflated, bytes;
+};
+
+// Undoes ZIP's two steps on `n` inflated bytes (OpenEXR's file layout, "ZIP compression"): each
+// byte was stored as the difference from the one before plus 128, and the bytes were split into
+// the even-indexed ones followed by the odd-indexed ones.
+void unpredict(unsigned char* t, std::size_t n, unsigned char* out) {
+  for (std::size_t i = 1; i < n; ++i) t[i] = static_cast<unsigned char>(t[i - 1] + t[i] - 128);
+  const unsigned char* a = t;
+  const unsigned char* b = t + (n + 1) / 2;
+  std::size_t i = 0;
+  for (; i + 1 < n; i += 2) {
+    out[i] = *a++;
+    out[i + 1] = *b++;
+  }
+  if (i < n) out[i] = *a;
+}
+
+}  // namespace
+
+bool chunk_decodes(const HeaderSummary& header) {
+  if (header.format != FileFormat::exr || header.parts.size() != 1) return false;
+  const HeaderPart& p = header.parts.front();
+  if (!p.plain_scanline || p.chunk_offsets.empty()) return false;
+  if (p.compression != kNone && p.compression != kZips && p.compression != kZip) return false;
+  if (p.channels.empty() || p.pixel_types.size() != p.channels.size()) return false;
+  for (std::size_t c = 0; c < p.channels.size(); ++c) {
+    if (p.pixel_types[c] != kHalf && p.pixel_types[c] != kFloat) return false;
+    // OpenEXR lays a line's channels out in the order of its (sorted, unique) channel list;
+    // a file that lists them otherwise is left to the library's own reading.
+    if (c > 0 && std::strcmp(p.channels[c - 1].c_str(), p.channels[c].c_str()) >= 0) return false;
+  }
+  return true;
+}
+
+std::uint64_t chunk_scratch_bytes(const HeaderPart& part) {
+  return 3 * static_cast<std::uint64_t>(lines_per_chunk(part.compression)) * line_bytes(part);
+}
+
+void decode_chunks(const ByteSource& src, const HeaderPart& part, const std::string& name,
+                   std::span<const ChunkTarget> targets) {
+  const std::size_t w = static_cast<std::size_t>(part.width);
+  const int L = lines_per_chunk(part.compression);
+  // Where each channel starts in a line.
+  std::vector<std::size_t> at(part.channels.size());
+  std::size_t line = 0;
+  for (std::size_t c = 0; c < part.channels.size(); ++c) {
+    at[c] = line;
+    line += w * (part.pixel_types[c] == kHalf ? 2 : 4);
+  }
+  for (const ChunkTarget& t : targets) {
+    if (t.channel < 0 || static_cast<std::size_t>(t.channel) >= at.size() || !t.plane) {
+      throw std::logic_error("decode_chunks: a target names no channel of the part");
+    }
+  }
+  const std::size_t chunks = part.chunk_offsets.size();
+  if (chunks != (static_cast<std::size_t>(part.height) + L - 1) / static_cast<std::size_t>(L)) {
+    fail(InputErrorKind::unreadable, name, "corrupt: chunk table does not cover the image");
+  }
+  const std::uint64_t file = src.size();
+  tbb::enumerable_thread_specific<Scratch> scratch;
+  tbb::parallel_for(std::size_t{0}, chunks, [&](std::size_t k) {
+    Scratch& s = scratch.local();
+    const int y0 = static_cast<int>(k) * L;
+    const int lines = std::min(L, part.height - y0);
+    const std::size_t expected = static_cast<std::size_t>(lines) * line;
+    const auto corrupt = [&](const std::string& why) {
+      fail(InputErrorKind::unreadable, name,
+           "truncated or corrupt pixel data: chunk " + std::to_string(k) + " " + why);
+    };
+    // The chunk header again (the walk checked it; a descriptor's file may have changed since).
+    const std::uint64_t offset = part.chunk_offsets[k];
+    unsigned char head[8];
+    if (offset > file || file - offset < 8 || src.read(offset, head, 8) != 8) corrupt("is cut off");
+    std::int32_t y = 0, size = 0;
+    std::memcpy(&y, head, 4);
+    std::memcpy(&size, head + 4, 4);
+    if (static_cast<std::int64_t>(y) != static_cast<std::int64_t>(part.ymin) + y0) {
+      corrupt("names line " + std::to_string(y));
+    }
+    // Stored as is when compressing did not make it smaller (NONE: always).
+    if (size <= 0 || static_cast<std::uint64_t>(size) > expected ||
+        (part.compression == kNone && static_cast<std::uint64_t>(size) != expected)) {
+      corrupt("holds " + std::to_string(size) + " bytes for " + std::to_string(expected));
+    }
+    if (static_cast<std::uint64_t>(size) > file - offset - 8) corrupt("is cut off");
+    s.packed.resize(static_cast<std::size_t>(size));
+    if (src.read(offset + 8, s.packed.data(), s.packed.size()) != s.packed.size()) {
+      corrupt("is cut off");
+    }
+    const unsigned char* bytes = s.packed.data();
+    if (static_cast<std::size_t>(size) < expected) {
+      s.inflated.resize(expected);
+      s.bytes.resize(expected);
+      uLongf got = static_cast<uLongf>(expected);
+      const int rc =
+          ::uncompress(s.inflated.data(), &got, s.packed.data(), static_cast<uLong>(size));
+      if (rc != Z_OK || got != expected) {
+        corrupt(rc == Z_OK ? "inflates to " + std::to_string(got) + " bytes, not " +
+                                 std::to_string(expected)
+                           : "does not inflate (zlib error " + std::to_string(rc) + ")");
+      }
+      unpredict(s.inflated.data(), expected, s.bytes.data());
+      bytes = s.bytes.data();
+    }
+    for (int l = 0; l < lines; ++l) {
+      const unsigned char* in = bytes + static_cast<std::size_t>(l) * line;
+      const std::size_t row = static_cast<std::size_t>(y0 + l) * w;
+      for (const ChunkTarget& t : targets) {
+        const auto c = static_cast<std::size_t>(t.channel);
+        const unsigned char* v = in + at[c];
+        float* dst = t.plane + row;
+        if (part.pixel_types[c] == kFloat) {
+          std::memcpy(dst, v, w * sizeof(float));
+        } else {
+          for (std::size_t x = 0; x < w; ++x) {
+            std::uint16_t h;
+            std::memcpy(&h, v + 2 * x, 2);
+            dst[x] = imath_half_to_float(h);
+          }
+        }
+      }
+    }
+  });
+}
+
+}  // namespace proden::io::detail
