@@ -50,6 +50,7 @@ io::HeaderSummary walk(const std::vector<std::uint8_t>& bytes, const std::string
 void require_same_bits(const Image& a, const Image& b) {
   REQUIRE(a.same_size(b));
   REQUIRE(a.channels() == b.channels());
+  if (a.data().empty()) return;
   REQUIRE(std::memcmp(a.data().data(), b.data().data(), a.data().size() * sizeof(float)) == 0);
 }
 
@@ -241,14 +242,19 @@ TEST_CASE("scanlines read in strips of any height equal one whole read", "[io]")
   };
   const std::string files[] = {write("scan.exr", 0, 0, false), write("half.exr", 0, 0, true),
                                write("origin.exr", 0, 3, false), write("tiled.exr", 8, 0, false)};
+  // OpenImageIO's strips (the chunk decoder has none: it is compared with them at the end).
+  io::ReadOptions library;
+  library.exr_decoder = io::ExrDecoder::library;
   for (const std::string& f : files) {
     INFO(f);
     io::PassInfo whole_info;
-    const Pass whole = io::read_pass(f, {}, &whole_info);
+    const Pass whole = io::read_pass(f, library, &whole_info);
     REQUIRE(whole.layout() == Layout{true, true, true, false});
     require_close(whole.colour, p.colour, f.find("half") != std::string::npos ? 1e-3 : 0.0);
+    // The default route (the chunk decoder for the scanline files, a data window at 3,3 too).
+    require_same_pass(io::read_pass(f), whole);
     for (std::uint64_t strip : {std::uint64_t{1}, std::uint64_t{1000}}) {
-      io::ReadOptions o;
+      io::ReadOptions o = library;
       o.strip_bytes = strip;
       io::PassInfo info;
       const Pass r = io::read_pass(f, o, &info);
