@@ -310,8 +310,9 @@ TEST_CASE("the chunk decoder reads what OpenEXR's C++ library reads, bit for bit
   {
     Image y(33, 17, 1);
     for (std::size_t i = 0; i < y.data().size(); ++i) y.data()[i] = 0.25f * static_cast<float>(i);
+    const Image rgb(33, 17, 3, 0.5f);  // the channels below point into it
     std::vector<io::NamedChannel> ch;
-    io::add_layer(ch, "", Image(33, 17, 3, 0.5f), "RGB");
+    io::add_layer(ch, "", rgb, "RGB");
     io::add_layer(ch, "alpha.", y, "Y");
     const std::string f = dir.file("layers.exr");
     io::write_image(f, 33, 17, ch, {});
