@@ -25,11 +25,13 @@ int lines_per_chunk(int compression) {
   return compression == kZip ? 16 : 1;
 }
 
-std::uint64_t line_bytes(const HeaderPart& part) {
-  std::uint64_t n = 0;
-  for (const int t : part.pixel_types)
-    n += static_cast<std::uint64_t>(part.width) * (t == kHalf ? 2 : 4);
-  return n;
+// Where each channel starts in a line, and the line's bytes (the last entry).
+std::vector<std::size_t> line_layout(const HeaderPart& part) {
+  std::vector<std::size_t> at{0};
+  for (const int t : part.pixel_types) {
+    at.push_back(at.back() + static_cast<std::size_t>(part.width) * (t == kHalf ? 2 : 4));
+  }
+  return at;
 }
 
 // The scratch of one thread: a chunk as stored, inflated, and reordered.
@@ -70,22 +72,18 @@ bool chunk_decodes(const HeaderSummary& header) {
 }
 
 std::uint64_t chunk_scratch_bytes(const HeaderPart& part) {
-  return 3 * static_cast<std::uint64_t>(lines_per_chunk(part.compression)) * line_bytes(part);
+  return 3 * static_cast<std::uint64_t>(lines_per_chunk(part.compression)) *
+         line_layout(part).back();
 }
 
 void decode_chunks(const ByteSource& src, const HeaderPart& part, const std::string& name,
                    std::span<const ChunkTarget> targets) {
   const std::size_t w = static_cast<std::size_t>(part.width);
   const int L = lines_per_chunk(part.compression);
-  // Where each channel starts in a line.
-  std::vector<std::size_t> at(part.channels.size());
-  std::size_t line = 0;
-  for (std::size_t c = 0; c < part.channels.size(); ++c) {
-    at[c] = line;
-    line += w * (part.pixel_types[c] == kHalf ? 2 : 4);
-  }
+  const std::vector<std::size_t> at = line_layout(part);
+  const std::size_t line = at.back();
   for (const ChunkTarget& t : targets) {
-    if (t.channel < 0 || static_cast<std::size_t>(t.channel) >= at.size() || !t.plane) {
+    if (t.channel < 0 || static_cast<std::size_t>(t.channel) >= part.channels.size() || !t.plane) {
       throw std::logic_error("decode_chunks: a target names no channel of the part");
     }
   }

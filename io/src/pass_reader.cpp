@@ -16,6 +16,7 @@
 #include <cstring>
 #include <map>
 #include <memory>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <system_error>
@@ -416,7 +417,7 @@ class ChannelLoader {
       run = std::max(run, static_cast<std::uint64_t>(rows_per_read(r)) *
                               static_cast<std::uint64_t>(h_.width) * row_floats(r) * sizeof(float));
     }
-    if (chunk_route()) {  // each decoding thread's scratch instead
+    if (chunk_channels()) {  // each decoding thread's scratch instead
       run = detail::chunk_scratch_bytes(chunks_.summary->parts.front()) *
             static_cast<std::uint64_t>(tbb::this_task_arena::max_concurrency());
     }
@@ -457,34 +458,35 @@ class ChannelLoader {
   struct Run {
     int subimage, begin, end;  // channels [begin, end)
   };
-  // Decodes with the chunk decoder when chunk_route(); false (nothing written) otherwise.
+  // Decodes with the chunk decoder when it reads the file; false (nothing written) otherwise.
   bool chunk_targets(std::vector<Image>& out) const {
-    if (!chunk_route()) return false;
-    const HeaderPart& part = chunks_.summary->parts.front();
+    const auto index = chunk_channels();
+    if (!index) return false;
     std::vector<detail::ChunkTarget> targets;
+    std::size_t i = 0;
     for (std::size_t k = 0; k < sets_.size(); ++k) {
       for (std::size_t c = 0; c < sets_[k].size(); ++c) {
-        const auto it = std::find(part.channels.begin(), part.channels.end(), sets_[k][c]);
-        targets.push_back({static_cast<int>(it - part.channels.begin()),
-                           out[k].plane(static_cast<int>(c)).data()});
+        targets.push_back({(*index)[i++], out[k].plane(static_cast<int>(c)).data()});
       }
     }
-    detail::decode_chunks(*chunks_.src, part, path_, targets);
+    detail::decode_chunks(*chunks_.src, chunks_.summary->parts.front(), path_, targets);
     return true;
   }
-  // Whether the chunk decoder reads this file and knows every wanted channel by name.
-  bool chunk_route() const {
-    if (!chunks_.src || !chunks_.summary || !detail::chunk_decodes(*chunks_.summary)) return false;
+  // When the chunk decoder reads this file and knows every wanted channel by name: each wanted
+  // channel's index in the part's channel list, sets in order.
+  std::optional<std::vector<int>> chunk_channels() const {
+    if (!chunks_.src || !chunks_.summary || !detail::chunk_decodes(*chunks_.summary)) return {};
     const HeaderPart& part = chunks_.summary->parts.front();
-    if (part.width != h_.width || part.height != h_.height || h_.subimages != 1) return false;
+    if (part.width != h_.width || part.height != h_.height || h_.subimages != 1) return {};
+    std::vector<int> index;
     for (const auto& set : sets_) {
       for (const auto& n : set) {
-        if (std::find(part.channels.begin(), part.channels.end(), n) == part.channels.end()) {
-          return false;
-        }
+        const auto it = std::find(part.channels.begin(), part.channels.end(), n);
+        if (it == part.channels.end()) return {};
+        index.push_back(static_cast<int>(it - part.channels.begin()));
       }
     }
-    return true;
+    return index;
   }
   std::uint64_t pixels() const {
     return static_cast<std::uint64_t>(h_.width) * static_cast<std::uint64_t>(h_.height);
