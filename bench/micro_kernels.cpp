@@ -5,9 +5,11 @@
 // copy peaks. Items/s are pixels/s. Run: build-bench/bench/proden_micro_kernels.
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <ctime>
 #include <random>
 #include <string>
 #include <vector>
@@ -136,26 +138,72 @@ const FrameEstimate& frame_1080p() {
   return est;
 }
 
+// Every pixel of the frame once, in 256-pixel tiles, with or without the Jacobian diagonal.
+void nlmeans_frame(const NlMeansDenoiser& nl, const DenoiseInputs& din, bool jac) {
+  constexpr int kT = 256;
+  for (int y0 = 0; y0 < din.height; y0 += kT) {
+    for (int x0 = 0; x0 < din.width; x0 += kT) {
+      const Rect t{x0, y0, std::min(x0 + kT, din.width), std::min(y0 + kT, din.height)};
+      Buffer y(t, 3), d(t, 3);
+      nl.denoise(din, t, y, jac ? &d : nullptr);
+      benchmark::DoNotOptimize(y.at(t.x0, t.y0, 0));
+    }
+  }
+}
+
 void BM_NlMeansFrame(benchmark::State& state) {
   const FrameEstimate& est = frame_1080p();
   const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
   const bool jac = state.range(0) != 0;
   const NlMeansDenoiser nl{NlMeansParams{}};
-  constexpr int kT = 256;
-  for (auto _ : state) {
-    for (int y0 = 0; y0 < din.height; y0 += kT) {
-      for (int x0 = 0; x0 < din.width; x0 += kT) {
-        const Rect t{x0, y0, std::min(x0 + kT, din.width), std::min(y0 + kT, din.height)};
-        Buffer y(t, 3), d(t, 3);
-        nl.denoise(din, t, y, jac ? &d : nullptr);
-        benchmark::DoNotOptimize(y.at(t.x0, t.y0, 0));
-      }
-    }
-  }
+  for (auto _ : state) nlmeans_frame(nl, din, jac);
   state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(din.width) * din.height);
   state.SetLabel(std::string("1920x1080, tiles 256, ") + (jac ? "with Jacobian" : "no Jacobian"));
 }
 BENCHMARK(BM_NlMeansFrame)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
+
+// The divergence's cost against the denoiser alone (issue 12's "divergence <= 0.25x the denoiser
+// alone"), as a ratio measured in one run: each iteration times the frame without and with the
+// Jacobian back to back (thread CPU time), and the counter is the median over iterations of
+// with / without - 1, so that the VM's slow minutes weigh on both halves of every ratio.
+double thread_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+void BM_NlMeansJacobianCost(benchmark::State& state) {
+  const FrameEstimate& est = frame_1080p();
+  const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
+  const NlMeansDenoiser nl{NlMeansParams{}};
+  std::vector<double> ratio, without, with;
+  for (auto _ : state) {
+    const bool first_with = ratio.size() % 2 == 1;  // alternate which half runs first
+    double t[2];
+    for (int i = 0; i < 2; ++i) {
+      const bool jac = (i == 0) == first_with;
+      const double t0 = thread_cpu_seconds();
+      nlmeans_frame(nl, din, jac);
+      t[jac ? 1 : 0] = thread_cpu_seconds() - t0;
+    }
+    without.push_back(t[0]);
+    with.push_back(t[1]);
+    ratio.push_back(t[1] / t[0] - 1.0);
+  }
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.empty() ? 0.0 : v[v.size() / 2];
+  };
+  state.counters["jacobian_over_denoiser"] = median(ratio);
+  // The same from each half's fastest iteration (the least disturbed by the VM's neighbours).
+  state.counters["jacobian_over_denoiser_best"] =
+      *std::min_element(with.begin(), with.end()) /
+          *std::min_element(without.begin(), without.end()) -
+      1.0;
+  state.counters["denoiser_s"] = median(without);
+  state.counters["with_jacobian_s"] = median(with);
+  state.SetLabel("1920x1080, tiles 256, " + nl.isa() + ", medians over iterations");
+}
+BENCHMARK(BM_NlMeansJacobianCost)->Unit(benchmark::kMillisecond)->MinTime(10);
 
 // The machine's peaks in the same run, for the kernels' share of them: single-precision FMA
 // throughput (AVX-512 when the CPU has it, else AVX2; 2 flops per lane per FMA; independent

@@ -63,10 +63,10 @@ struct Kernel {
   float k2, alpha, eps, inv_patch3, inv_kf2, tau, depth_scale;
   bool features, derivative;
   // Scratch. Pair planes over E with a margin of R (kL more on the right): the colour distance of
-  // offsets delta and -delta, and the pairs' inverse denominators 1 / (eps + k^2 (v_a +
-  // v_{a+delta})) (3 channel planes gis_c apart); row stride gs, g0 = index of E's (0, 0).
-  float *gdp, *gdm, *gis;
-  std::ptrdiff_t gs, g0, gis_c;
+  // offsets delta and -delta, and the pairs' Jacobian factors (x_a - x_{a+delta}) / (eps + k^2
+  // (v_a + v_{a+delta})) (3 channel planes gjac_c apart); row stride gs, g0 = index of E's (0, 0).
+  float *gdp, *gdm, *gjac;
+  std::ptrdiff_t gs, g0, gjac_c;
   // Feature planes of delta and -delta over the output with the same margins (stride fs, f0).
   float *gfp, *gfm;
   std::ptrdiff_t fs, f0;
@@ -274,18 +274,18 @@ void NlMeansDenoiser::denoise_block(const DenoiseInputs& in, const Rect& out, Bu
   const std::size_t fs = owv + 2 * static_cast<std::size_t>(R) + L;
   const std::size_t fh = static_cast<std::size_t>(oh + 2 * R);
   std::vector<float> gdp(gs * gh, 0.0f), gdm(gs * gh, 0.0f);
-  std::vector<float> gis(k.derivative ? 3 * gs * gh : 0, 0.0f);
+  std::vector<float> gjac(k.derivative ? 3 * gs * gh : 0, 0.0f);
   std::vector<float> gfp(k.features ? fs * fh : 0, 0.0f), gfm(k.features ? fs * fh : 0, 0.0f);
   std::vector<float> hring(2 * nr * owv);
   std::vector<const float*> hrows(2 * nr);
   std::vector<float> wrow(2 * owv), acc(acc_rs * static_cast<std::size_t>(oh), 0.0f);
   k.gdp = gdp.data();
   k.gdm = gdm.data();
-  k.gis = gis.data();
+  k.gjac = gjac.data();
   k.gs = static_cast<std::ptrdiff_t>(gs);
   k.g0 =
       static_cast<std::ptrdiff_t>(static_cast<std::size_t>(R) * gs + static_cast<std::size_t>(R));
-  k.gis_c = static_cast<std::ptrdiff_t>(gs * gh);
+  k.gjac_c = static_cast<std::ptrdiff_t>(gs * gh);
   k.gfp = gfp.data();
   k.gfm = gfm.data();
   k.fs = static_cast<std::ptrdiff_t>(fs);
