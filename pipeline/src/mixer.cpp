@@ -136,11 +136,6 @@ void box_sums(const Buffer& src, int c, const Rect& out, int r, const Rect& imag
             dst.rect().width());
 }
 
-// Row y of plane c of a view, from column x0 on.
-inline const float* row_at(const View& v, int x0, int y, int c) {
-  return v.data + v.index(x0, y, c);
-}
-
 // One thread's buffers for mix().
 struct Scratch {
   Buffer planes, terms, sums, wide, local;
@@ -198,8 +193,8 @@ void ClosedFormMixer::mix(const MixInputs& in, const Rect& out, Buffer& alpha) c
   const double g2 = static_cast<double>(params_.garrote) * params_.garrote;
   for (int c = 0; c < 3; ++c) {
     for (int y = vrect.y0; y < vrect.y1; ++y) {
-      const float* v = row_at(in.variance, vrect.x0, y, c);
-      const float* xr = row_at(in.x, vrect.x0, y, c);
+      const float* v = in.variance.ptr(vrect.x0, y, c);
+      const float* xr = in.x.ptr(vrect.x0, y, c);
       std::copy(v, v + vrect.width(), planes.row(y, 0));
       std::copy(xr, xr + vrect.width(), planes.row(y, 1));
     }
@@ -217,11 +212,11 @@ void ClosedFormMixer::mix(const MixInputs& in, const Rect& out, Buffer& alpha) c
     for (int y = wrect.y0; y < wrect.y1; ++y) {
       const int ny = std::min(y + 2, image.y1) - std::max(y - 1, image.y0);
       const float *lv = local.row(y, 0), *lx = local.row(y, 1);
-      const float* vr = row_at(in.variance, wrect.x0, y, c);
-      const float* xr = row_at(in.x, wrect.x0, y, c);
-      const float* yr = row_at(in.y, wrect.x0, y, c);
-      const float* er = row_at(stein ? in.divergence : in.sure, wrect.x0, y, c);
-      const float* pr = exact ? nullptr : row_at(in.origin.passes, wrect.x0, y, 0);
+      const float* vr = in.variance.ptr(wrect.x0, y, c);
+      const float* xr = in.x.ptr(wrect.x0, y, c);
+      const float* yr = in.y.ptr(wrect.x0, y, c);
+      const float* er = (stein ? in.divergence : in.sure).ptr(wrect.x0, y, c);
+      const float* pr = exact ? nullptr : in.origin.passes.ptr(wrect.x0, y, 0);
       float* t0 = terms.row(y, 0);
       float* t1 = terms.row(y, 1);
       float* t2 = two_scales ? terms.row(y, 2) : nullptr;

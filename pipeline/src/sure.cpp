@@ -19,11 +19,13 @@ float probe_normal(std::uint64_t seed, int probe, int x, int y, int c) {
 
 void divergence_from_derivative(const View& variance, const Buffer& dydx, const Rect& region,
                                 Buffer& div) {
+  const int n = region.width();
   for (int c = 0; c < 3; ++c) {
     for (int y = region.y0; y < region.y1; ++y) {
-      for (int x = region.x0; x < region.x1; ++x) {
-        div.at(x, y, c) = dydx.at(x, y, c) * variance.at(x, y, c);
-      }
+      const float* d = dydx.ptr(region.x0, y, c);
+      const float* v = variance.ptr(region.x0, y, c);
+      float* out = div.ptr(region.x0, y, c);
+      for (int i = 0; i < n; ++i) out[i] = d[i] * v[i];
     }
   }
 }
@@ -95,11 +97,17 @@ void divergence_monte_carlo(const Denoiser& denoiser, const DenoiseInputs& in, c
 
 void sure(const View& x, const View& variance, const Buffer& y, const Buffer& div,
           const Rect& region, Buffer& out) {
+  const int n = region.width();
   for (int c = 0; c < 3; ++c) {
     for (int py = region.y0; py < region.y1; ++py) {
-      for (int px = region.x0; px < region.x1; ++px) {
-        const float d = y.at(px, py, c) - x.at(px, py, c);
-        out.at(px, py, c) = d * d - variance.at(px, py, c) + 2.0f * div.at(px, py, c);
+      const float* yr = y.ptr(region.x0, py, c);
+      const float* xr = x.ptr(region.x0, py, c);
+      const float* vr = variance.ptr(region.x0, py, c);
+      const float* dr = div.ptr(region.x0, py, c);
+      float* o = out.ptr(region.x0, py, c);
+      for (int i = 0; i < n; ++i) {
+        const float d = yr[i] - xr[i];
+        o[i] = d * d - vr[i] + 2.0f * dr[i];
       }
     }
   }

@@ -45,6 +45,9 @@ struct View {
            static_cast<std::size_t>(x - rect.x0);
   }
   float at(int x, int y, int c) const { return data[index(x, y, c)]; }
+  // Pixel (x, y) of plane c and the rest of its row: per-element loops over rows vectorise, where
+  // at() recomputes the planar index for every element.
+  const float* ptr(int x, int y, int c) const { return data + index(x, y, c); }
 };
 
 // A view of a whole image (invalid view for an empty image).
@@ -76,6 +79,8 @@ class Buffer {
   float at(int x, int y, int c) const { return data_[view().index(x, y, c)]; }
   float* row(int y, int c) { return data_.data() + view().index(rect_.x0, y, c); }
   const float* row(int y, int c) const { return data_.data() + view().index(rect_.x0, y, c); }
+  float* ptr(int x, int y, int c) { return data_.data() + view().index(x, y, c); }
+  const float* ptr(int x, int y, int c) const { return data_.data() + view().index(x, y, c); }
 
  private:
   Rect rect_;
