@@ -326,19 +326,22 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
   FrameEstimate e;
   if (empty()) return e;
   const std::size_t n = pixels();
+  // Every plane below is written at every element (holes and single-pass pixels by the serial
+  // fallbacks after the parallel pass), so none is zero-filled first: that serial fill was 20-40 %
+  // of the estimate's time on two threads (bench/RESULTS.md, *The estimate's planes*).
   const Half& a = halves_[0];
   const Half& b = halves_[1];
-  e.mean = Image(width_, height_, 3);
-  e.variance = Image(width_, height_, 3);
-  e.passes = Image(width_, height_, 1);
+  e.mean = Image(width_, height_, 3, Image::uninitialized);
+  e.variance = Image(width_, height_, 3, Image::uninitialized);
+  e.passes = Image(width_, height_, 1, Image::uninitialized);
   // The halves are written in the same pass over the state as the frame (one read of it); the
   // quarters, rarer, read sigma^2 N per element back from `per_sample_var`.
   const bool halves = options.halves && passes() >= 2;
   const bool quarters = halves && options.quarters && quarters_ && passes() >= 4;
   if (halves) {
     for (std::size_t h = 0; h < 2; ++h) {
-      e.half_mean[h] = Image(width_, height_, 3);
-      e.half_variance[h] = Image(width_, height_, 3);
+      e.half_mean[h] = Image(width_, height_, 3, Image::uninitialized);
+      e.half_variance[h] = Image(width_, height_, 3, Image::uninitialized);
     }
   }
   std::vector<unsigned char> spatial(n, 0), hole(n, 0);
@@ -469,10 +472,10 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
     auto features = [&](const FeatureSpread& s, std::vector<double> Half::*mean_of, Image& mean,
                         Image& var, std::array<Image, 2>& half_means) {
       if (s.channels == 0) return;
-      mean = Image(width_, height_, s.channels);
-      var = Image(width_, height_, s.channels);
+      mean = Image(width_, height_, s.channels, Image::uninitialized);
+      var = Image(width_, height_, s.channels, Image::uninitialized);
       if (feature_halves) {
-        for (auto& h : half_means) h = Image(width_, height_, s.channels);
+        for (auto& h : half_means) h = Image(width_, height_, s.channels, Image::uninitialized);
       }
       std::array<float*, 3> mean_f{}, var_f{}, half_a{}, half_b{};
       for (int c = 0; c < s.channels; ++c) {
@@ -515,7 +518,7 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
     auto quarter = [&](std::size_t h, int s, const std::vector<double>& hm,
                        const std::vector<double>& sm, int channels, const Image& fallback,
                        Image& out) {
-      out = Image(width_, height_, channels);
+      out = Image(width_, height_, channels, Image::uninitialized);
       const Half& half = halves_[h];
       const SubHalf& sub = subs_[h];
       parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
@@ -536,7 +539,7 @@ FrameEstimate FrameAccumulator::estimate(const EstimateOptions& options) const {
         const std::size_t q = 2 * h + static_cast<std::size_t>(s);
         quarter(h, s, halves_[h].colour.mean, subs_[h].colour, 3, e.half_mean[h],
                 e.quarter_mean[q]);
-        e.quarter_variance[q] = Image(width_, height_, 3);
+        e.quarter_variance[q] = Image(width_, height_, 3, Image::uninitialized);
         parallel_chunks(n, kGrain, [&](std::size_t begin, std::size_t end) {
           for (std::size_t p = begin; p < end; ++p) {
             const double w1 = subs_[h].weight[p], w0 = halves_[h].weight[p] - w1;

@@ -4,13 +4,25 @@
 
 namespace proden {
 
-Image::Image(int width, int height, int channels, float fill)
-    : width_(width), height_(height), channels_(channels) {
+namespace {
+void check_dimensions(int width, int height, int channels) {
   if (width < 0 || height < 0 || channels < 0) {
     throw std::invalid_argument("Image: negative dimension " + std::to_string(width) + "x" +
                                 std::to_string(height) + "x" + std::to_string(channels));
   }
+}
+}  // namespace
+
+Image::Image(int width, int height, int channels, float fill)
+    : width_(width), height_(height), channels_(channels) {
+  check_dimensions(width, height, channels);
   data_.assign(pixels() * static_cast<std::size_t>(channels), fill);
+}
+
+Image::Image(int width, int height, int channels, Uninitialized)
+    : width_(width), height_(height), channels_(channels) {
+  check_dimensions(width, height, channels);
+  data_.resize(pixels() * static_cast<std::size_t>(channels));
 }
 
 std::span<float> Image::plane(int c) {

@@ -3,8 +3,11 @@
 #pragma once
 
 #include <cstddef>
+#include <memory>
+#include <new>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace proden {
@@ -13,6 +16,12 @@ class Image {
  public:
   Image() = default;
   Image(int width, int height, int channels, float fill = 0.0f);
+  // The values left unset, for a producer that writes every element itself
+  // (FrameAccumulator::estimate): no serial fill, and the pages are first touched by the
+  // producer's own threads.
+  struct Uninitialized {};
+  static constexpr Uninitialized uninitialized{};
+  Image(int width, int height, int channels, Uninitialized);
 
   int width() const { return width_; }
   int height() const { return height_; }
@@ -39,10 +48,31 @@ class Image {
     return static_cast<std::size_t>(c) * pixels() + static_cast<std::size_t>(y) * width_ + x;
   }
 
+  // std::allocator, except that a float made without a value is left unset (default-initialised)
+  // instead of zeroed: what Uninitialized needs; the other constructor fills explicitly.
+  template <class T>
+  struct DefaultInit : std::allocator<T> {
+    template <class U>
+    struct rebind {
+      using other = DefaultInit<U>;
+    };
+    DefaultInit() = default;
+    template <class U>
+    DefaultInit(const DefaultInit<U>&) noexcept {}
+    template <class U>
+    void construct(U* p) noexcept {
+      ::new (static_cast<void*>(p)) U;
+    }
+    template <class U, class... Args>
+    void construct(U* p, Args&&... args) {
+      ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+    }
+  };
+
   int width_ = 0;
   int height_ = 0;
   int channels_ = 0;
-  std::vector<float> data_;
+  std::vector<float, DefaultInit<float>> data_;
 };
 
 }  // namespace proden
