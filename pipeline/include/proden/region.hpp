@@ -77,10 +77,10 @@ class Buffer {
   View view() const { return {data_.data(), rect_, channels_}; }
   float& at(int x, int y, int c) { return data_[view().index(x, y, c)]; }
   float at(int x, int y, int c) const { return data_[view().index(x, y, c)]; }
-  float* row(int y, int c) { return data_.data() + view().index(rect_.x0, y, c); }
-  const float* row(int y, int c) const { return data_.data() + view().index(rect_.x0, y, c); }
   float* ptr(int x, int y, int c) { return data_.data() + view().index(x, y, c); }
   const float* ptr(int x, int y, int c) const { return data_.data() + view().index(x, y, c); }
+  float* row(int y, int c) { return ptr(rect_.x0, y, c); }
+  const float* row(int y, int c) const { return ptr(rect_.x0, y, c); }
 
  private:
   Rect rect_;

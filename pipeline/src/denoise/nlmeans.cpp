@@ -36,7 +36,7 @@ void pad_into(float* block, std::size_t rs, int slot, const View& v, int c, cons
     const int last = std::min(x_end, width) - 1;
     // Row sy of the view from its first column: image column x is row[x - vx0].
     const std::ptrdiff_t vx0 = v.rect.x0;
-    const float* row = v.data + v.index(v.rect.x0, sy, c);
+    const float* row = v.ptr(v.rect.x0, sy, c);
     int x = rect.x0;
     for (; x < mid0; ++x) *dst++ = row[-vx0];
     for (; x < std::min(mid1, rect.x1); ++x) *dst++ = row[x - vx0];
