@@ -1,6 +1,7 @@
 // Shared by the benchmark tools: synthetic Cycles-like passes (colour + albedo + normal + depth:
-// a smooth signal with a step, per-pass Gaussian noise, piecewise-constant features) and a
-// denoiser run alone over a frame in parallel tiles ("one denoiser run").
+// a smooth signal with a step, per-pass Gaussian noise, piecewise-constant features), a
+// denoiser run alone over a frame in parallel tiles ("one denoiser run"), and the Jacobian's cost
+// against it, timed in pairs.
 #pragma once
 
 #include <tbb/blocked_range2d.h>
@@ -8,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <ctime>
 #include <random>
 #include <vector>
 
@@ -67,6 +69,44 @@ inline Image tiled_denoise(const Denoiser& den, const DenoiseInputs& din, int ti
         }
       });
   return y;
+}
+
+// CPU seconds of the calling thread.
+inline double thread_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+// Every pixel of the frame once on the calling thread, in `tile`-pixel tiles, with or without
+// the denoiser's Jacobian diagonal (the divergence SURE needs).
+inline void serial_denoise(const Denoiser& den, const DenoiseInputs& din, int tile, bool jacobian) {
+  for (int y0 = 0; y0 < din.height; y0 += tile) {
+    for (int x0 = 0; x0 < din.width; x0 += tile) {
+      const Rect t{x0, y0, std::min(x0 + tile, din.width), std::min(y0 + tile, din.height)};
+      Buffer y(t, 3), d(t, 3);
+      den.denoise(din, t, y, jacobian ? &d : nullptr);
+    }
+  }
+}
+
+// One pair of serial_denoise runs back to back, without and with the Jacobian (`jacobian_first`
+// says which runs first), in thread CPU seconds: {without, with}. Issue 12's "divergence <= 0.25x
+// the denoiser alone" is the median over many pairs, alternating the order, of with / without - 1,
+// so that the VM's slow minutes weigh on both halves of every ratio.
+struct JacobianPair {
+  double without = 0, with = 0;
+};
+inline JacobianPair jacobian_pair(const Denoiser& den, const DenoiseInputs& din, int tile,
+                                  bool jacobian_first) {
+  JacobianPair p;
+  for (int i = 0; i < 2; ++i) {
+    const bool jac = (i == 0) == jacobian_first;
+    const double t0 = thread_cpu_seconds();
+    serial_denoise(den, din, tile, jac);
+    (jac ? p.with : p.without) = thread_cpu_seconds() - t0;
+  }
+  return p;
 }
 
 }  // namespace proden::bench

@@ -117,6 +117,10 @@ struct SizeResult {
   StageTimings mc;     // Monte Carlo, N threads
   bool have_mc = false;
   double denoise_only_s[2] = {0, 0};
+  // The Jacobian's cost over the denoiser alone, paired (bench::jacobian_pair, 1 thread): the
+  // median over `jacobian_pairs` pairs of with / without - 1.
+  double jacobian_paired = 0, jacobian_paired_lo = 0, jacobian_paired_hi = 0;
+  int jacobian_pairs = 0;
   double cores_obtained[2] = {0, 0};  // process CPU seconds / wall during the analytic run
   double peak_bytes = 0;
   double state_bpp = 0, layout_bpp = 0;
@@ -307,6 +311,19 @@ int main(int argc, char** argv) {
       std::vector<double> alone;  // the same number of runs, so the ratios compare like with like
       for (int i = 0; i < repeat; ++i) alone.push_back(denoise_only(est, o));
       s.denoise_only_s[ti] = bench::median(alone);
+      if (ti == 0) {
+        const NlMeansDenoiser nl(o.nlmeans);
+        const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
+        std::vector<double> ratios;
+        s.jacobian_pairs = std::max(6, 2 * repeat);
+        for (int i = 0; i < s.jacobian_pairs; ++i) {
+          const bench::JacobianPair p = bench::jacobian_pair(nl, din, o.tile, i % 2 == 1);
+          ratios.push_back(p.with / p.without - 1.0);
+        }
+        s.jacobian_paired = bench::median(ratios);
+        s.jacobian_paired_lo = *std::min_element(ratios.begin(), ratios.end());
+        s.jacobian_paired_hi = *std::max_element(ratios.begin(), ratios.end());
+      }
       if (ti == 1) run = std::move(r);
     }
     if (mc && (W * H <= 1920 * 1080 || sizes.size() == 1)) {
@@ -425,6 +442,10 @@ int main(int argc, char** argv) {
       "  SURE / one denoiser run, analytic (Jacobian + SURE)  %.3f  (goal <= 0.2; SURE "
       "stage alone %.3f)\n",
       sure_an, sure_an_stage);
+  std::printf(
+      "  Jacobian / one denoiser run, paired (1 thread)       %.3f  (issue 12: divergence <= "
+      "0.25; median of %d pairs timed back to back, range %.3f-%.3f)\n",
+      a.jacobian_paired, a.jacobian_pairs, a.jacobian_paired_lo, a.jacobian_paired_hi);
   if (a.have_mc)
     std::printf("  SURE / one denoiser run, Monte-Carlo probe (K=4)     %.3f\n", sure_mc);
   std::printf(
@@ -476,15 +497,15 @@ int main(int argc, char** argv) {
                  " ],\n \"sgemm\": {\"n\": %d, \"gflops_1\": %.3f, \"gflops_n\": %.3f, \"how\": "
                  "\"%s\"},\n",
                  gemm_n, gf1, gfN, how.c_str());
-    std::fprintf(
-        f,
-        " \"ratios\": {\"update_over_cycles_spp\": %s, \"cycles_spp_seconds\": %s, "
-        "\"sure_over_denoise_analytic\": %s, \"sure_stage_over_denoise_analytic\": %s, "
-        "\"sure_over_denoise_mc\": %s, \"mixer_over_sgemm\": null, "
-        "\"threads_speedup\": %s, \"k4_over_1080p\": %s, \"k4_over_1080p_1thread\": %s}\n}\n",
-        num(upd_ratio).c_str(), num(cycles_spp_s > 0 ? cycles_spp_s : NAN).c_str(),
-        num(sure_an).c_str(), num(sure_an_stage).c_str(), num(sure_mc).c_str(),
-        num(thr_ratio).c_str(), num(k4).c_str(), num(k4_1).c_str());
+    std::fprintf(f,
+                 " \"ratios\": {\"update_over_cycles_spp\": %s, \"cycles_spp_seconds\": %s, "
+                 "\"sure_over_denoise_analytic\": %s, \"sure_stage_over_denoise_analytic\": %s, "
+                 "\"jacobian_over_denoise_paired\": %s, \"sure_over_denoise_mc\": %s, "
+                 "\"mixer_over_sgemm\": null, \"threads_speedup\": %s, \"k4_over_1080p\": %s, "
+                 "\"k4_over_1080p_1thread\": %s}\n}\n",
+                 num(upd_ratio).c_str(), num(cycles_spp_s > 0 ? cycles_spp_s : NAN).c_str(),
+                 num(sure_an).c_str(), num(sure_an_stage).c_str(), num(a.jacobian_paired).c_str(),
+                 num(sure_mc).c_str(), num(thr_ratio).c_str(), num(k4).c_str(), num(k4_1).c_str());
     std::fclose(f);
   }
   return 0;

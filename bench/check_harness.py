@@ -52,7 +52,8 @@ def main():
             if not (s["analytic_1"][k] > 0 and s["analytic_n"][k] > 0):
                 fail(f"stage {k}")
         r = p["ratios"]
-        for k in ("update_over_cycles_spp", "sure_over_denoise_analytic", "threads_speedup"):
+        for k in ("update_over_cycles_spp", "sure_over_denoise_analytic",
+                  "jacobian_over_denoise_paired", "threads_speedup"):
             if not finite(r[k]):
                 fail(f"ratio {k} = {r[k]}")
         if not p["sgemm"]["gflops_1"] > 0:

@@ -51,6 +51,8 @@ def f(v, d=2):
 GOALS = [
     ("update_over_cycles_spp", "full 1080p update / one more Cycles spp of 1080p", 1.0, "max"),
     ("sure_over_denoise_analytic", "SURE / one denoiser run (analytic divergence)", 0.2, "max"),
+    ("jacobian_over_denoise_paired", "NL-means' Jacobian / the denoiser alone (paired, issue 12)",
+     0.25, "max"),
     ("sure_over_denoise_mc", "SURE / one denoiser run (Monte-Carlo probe, K=4)", None, None),
     ("mixer_over_sgemm", "mixer network GFLOP/s / machine sgemm GFLOP/s", 0.7, "min"),
     ("threads_speedup", "2 threads / 1 thread (pipeline wall, 1080p)", 1.8, "min"),
@@ -213,6 +215,9 @@ def perf_section(perf, cyc, L):
         if key == "sure_over_denoise_analytic":
             extra = (f" ((denoise with Jacobian + SURE stage - denoiser alone) / denoiser alone, "
                      f"1 thread; SURE stage alone {f(r.get('sure_stage_over_denoise_analytic'), 3)})")
+        if key == "jacobian_over_denoise_paired":
+            extra = (" (median over pairs of with / without - 1, the two runs timed back to back "
+                     "on 1 thread, alternating which runs first)")
         if key == "k4_over_1080p":
             extra = f" (1 thread: {f(r.get('k4_over_1080p_1thread'))}x)"
         L.append(f"| {label} | {f(v)} | {g} | {ok}{extra} |")

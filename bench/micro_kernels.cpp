@@ -139,56 +139,29 @@ const FrameEstimate& frame_1080p() {
   return est;
 }
 
-// Every pixel of the frame once, in 256-pixel tiles, with or without the Jacobian diagonal.
-void nlmeans_frame(const NlMeansDenoiser& nl, const DenoiseInputs& din, bool jac) {
-  constexpr int kT = 256;
-  for (int y0 = 0; y0 < din.height; y0 += kT) {
-    for (int x0 = 0; x0 < din.width; x0 += kT) {
-      const Rect t{x0, y0, std::min(x0 + kT, din.width), std::min(y0 + kT, din.height)};
-      Buffer y(t, 3), d(t, 3);
-      nl.denoise(din, t, y, jac ? &d : nullptr);
-      benchmark::DoNotOptimize(y.at(t.x0, t.y0, 0));
-    }
-  }
-}
-
 void BM_NlMeansFrame(benchmark::State& state) {
   const FrameEstimate& est = frame_1080p();
   const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
   const bool jac = state.range(0) != 0;
   const NlMeansDenoiser nl{NlMeansParams{}};
-  for (auto _ : state) nlmeans_frame(nl, din, jac);
+  for (auto _ : state) bench::serial_denoise(nl, din, 256, jac);
   state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(din.width) * din.height);
   state.SetLabel(std::string("1920x1080, tiles 256, ") + (jac ? "with Jacobian" : "no Jacobian"));
 }
 BENCHMARK(BM_NlMeansFrame)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
 
 // The divergence's cost against the denoiser alone (issue 12's "divergence <= 0.25x the denoiser
-// alone"), as a ratio measured in one run: each iteration times the frame without and with the
-// Jacobian back to back (thread CPU time), and the counter is the median over iterations of
-// with / without - 1, so that the VM's slow minutes weigh on both halves of every ratio.
-double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
+// alone"): one bench::jacobian_pair per iteration, the counter the median of with / without - 1.
 void BM_NlMeansJacobianCost(benchmark::State& state) {
   const FrameEstimate& est = frame_1080p();
   const DenoiseInputs din = denoise_inputs(est, est.mean, est.variance, true);
   const NlMeansDenoiser nl{NlMeansParams{}};
   std::vector<double> ratio, without, with;
   for (auto _ : state) {
-    const bool first_with = ratio.size() % 2 == 1;  // alternate which half runs first
-    double t[2];
-    for (int i = 0; i < 2; ++i) {
-      const bool jac = (i == 0) == first_with;
-      const double t0 = thread_cpu_seconds();
-      nlmeans_frame(nl, din, jac);
-      t[jac ? 1 : 0] = thread_cpu_seconds() - t0;
-    }
-    without.push_back(t[0]);
-    with.push_back(t[1]);
-    ratio.push_back(t[1] / t[0] - 1.0);
+    const bench::JacobianPair p = bench::jacobian_pair(nl, din, 256, ratio.size() % 2 == 1);
+    without.push_back(p.without);
+    with.push_back(p.with);
+    ratio.push_back(p.with / p.without - 1.0);
   }
   if (ratio.empty()) return;
   auto median = [](std::vector<double> v) {
