@@ -52,6 +52,11 @@ struct Setup {
   bool proden = true;  // per-channel consistent statistic (else the authors' summed one)
   bool dof = false;    // compute Welch-Satterthwaite degrees of freedom (else exact variance)
   double sigma_scale = 100.0, sigma_floor = 1e-3;
+  // A pixel whose three statistics are all at or below this needs its dof only as "finite" (the
+  // rejection curve's RejectionCurve::dof_free_t): the kernel then skips the scalar part of the
+  // sum over the highest-variance pixel's box, and reports dof 1 when it is finite. -1 (never):
+  // t_statistic, which reports the dof itself.
+  double dof_free_t = -1.0;
 };
 
 // Statistics of up to kMaxLanes consecutive pixels of one row.
@@ -374,9 +379,10 @@ void t_rescale(const View& x, const View& variance, const View& z, const View& a
                int height, const Rect& out, const TTestParams& p, Buffer& rescaled,
                const VarianceOrigin& origin) {
   if (out.empty()) return;
-  const Setup s = make_setup(p, origin, width, height);
+  Setup s = make_setup(p, origin, width, height);
   const Planes pl = make_planes(x, variance, z, out, s, origin);
   const RejectionCurve* curve = s.proden ? &RejectionCurve::shared(p.t0, p.slope) : nullptr;
+  if (curve) s.dof_free_t = curve->dof_free_t();
   const KernelBuild& kb = kernel_build(p.isa);
   LaneStats st;
   for (int py = out.y0; py < out.y1; ++py) {

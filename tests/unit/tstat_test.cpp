@@ -313,6 +313,60 @@ TEST_CASE("every t-test kernel build gives the same bits", "[ttest][isa]") {
                   std::invalid_argument);
 }
 
+TEST_CASE("t_rescale keeps alpha by the curve at each pixel's statistic and dof", "[ttest][dof]") {
+  // t_rescale skips the dof's last sum where all three t are too low for it to matter
+  // (RejectionCurve::dof_free_t); t_statistic always computes it. Low and high t, few passes
+  // (where the dof moves the threshold most), and a region of exactly zero variance.
+  const int W = 37, H = 21, pool = 2;
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<float> un(0.0f, 1.0f);
+  Image x(W, H, 3), z(W, H, 3), var(W, H, 3), alpha(W, H, 3), passes(W, H, 1);
+  for (int y = 0; y < H; ++y) {
+    for (int xx = 0; xx < W; ++xx) {
+      passes.at(xx, y, 0) = static_cast<float>(2 + (xx + y) % 3);  // 2..4 passes
+      for (int c = 0; c < 3; ++c) {
+        const bool exact = xx<8, biased = xx> 24;
+        x.at(xx, y, c) = un(rng);
+        const float sd = exact ? 0.0f : 0.02f;
+        var.at(xx, y, c) = sd * sd;
+        // Unbiased (t mostly below dof_free_t), biased by 0.3 to 30 sd (t high).
+        const float shift = biased ? sd * 0.3f * static_cast<float>(1 + (xx * 7 + y) % 100) : 0.0f;
+        z.at(xx, y, c) = x.at(xx, y, c) + (exact ? 0.0f : shift + 0.3f * sd * (un(rng) - 0.5f));
+        alpha.at(xx, y, c) = 0.25f + 0.75f * un(rng);
+      }
+    }
+  }
+  const Image pooled = pool_variance(var, pool);
+  const VarianceOrigin origin{view_of(passes), false, pool, view_of(var)};
+  const TTestParams fine{.radius = 2, .sigma_scale = 0.0f, .sigma_floor = 1.0f};
+  for (const TTestParams& p : {TTestParams{}, fine}) {
+    const RejectionCurve& curve = RejectionCurve::shared(p.t0, p.slope);
+    const Rect whole{0, 0, W, H};
+    Buffer r(whole, 3);
+    t_rescale(view_of(x), view_of(pooled), view_of(z), view_of(alpha), W, H, whole, p, r, origin);
+    int low = 0, high = 0, rejected = 0;
+    for (int y = 0; y < H; ++y) {
+      for (int xx = 0; xx < W; ++xx) {
+        const TStatistic st =
+            t_statistic(view_of(x), view_of(pooled), view_of(z), W, H, xx, y, p, origin);
+        double keep[3];
+        curve.keep(st.t, 3, st.dof, keep);
+        const double tmax = std::max({st.t[0], st.t[1], st.t[2]});
+        (tmax <= curve.dof_free_t() ? low : high) += 1;
+        for (int c = 0; c < 3; ++c) {
+          INFO("pixel " << xx << "," << y << " t " << st.t[c] << " dof " << st.dof);
+          CHECK(r.at(xx, y, c) == static_cast<float>(alpha.at(xx, y, c) * keep[c]));
+          rejected += keep[c] < 0.5 ? 1 : 0;
+        }
+      }
+    }
+    // Both kinds of pixel were there, and some were rejected.
+    CHECK(low > 50);
+    CHECK(high > 50);
+    CHECK(rejected > 50);
+  }
+}
+
 namespace {
 
 enum class Noise {

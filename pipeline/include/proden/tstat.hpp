@@ -82,6 +82,9 @@ class RejectionCurve {
   // keep for n statistics sharing one dof (the row is interpolated once).
   void keep(const double* t, int n, double dof, double* out) const;
   static double exact_normal_score(double t, double dof);  // Boost.Math, for tests
+  // Statistics at or below this keep the same factor whatever their finite dof (every row starts
+  // at or above it): the t-test need not compute the dof of a pixel whose t are all this low.
+  double dof_free_t() const { return first_t_.front(); }
 
  private:
   struct Row {  // the table interpolated at one dof
