@@ -9,7 +9,7 @@
 
 namespace proden {
 
-// Smallest block that is advised: it always holds at least one whole huge page.
+// Smallest block that is advised: it always holds at least one whole 2 MiB page.
 inline constexpr std::size_t kHugeBlockMin = std::size_t{4} << 20;
 
 enum class HugePages {
