@@ -24,6 +24,7 @@
 namespace proden {
 namespace {
 
+#ifndef PRODEN_SANITIZER_ALLOCATOR
 // The first line of a small sysfs file, read with plain system calls (this runs inside operator
 // new, so it must not allocate). Empty when unreadable.
 struct Line {
@@ -39,6 +40,7 @@ Line read_line(const char* path) {
   l.text[n > 0 ? n : 0] = '\0';
   return l;
 }
+#endif
 
 struct Policy {
   HugePages mode = HugePages::off;
