@@ -1,8 +1,8 @@
 // Large blocks on transparent huge pages: the executables that link service/huge_pages.cpp
 // replace `operator new` so that a block of at least kHugeBlockMin bytes asks the kernel for
-// 2 MiB pages (madvise MADV_HUGEPAGE) where the kernel gives them only on request. A 1080p update
-// touches ~1.5 GB of fresh planes; faulting them in 4 KiB pages cost up to a third of its time
-// (bench/RESULTS.md, "Huge pages"; docs/api.md, "Memory").
+// 2 MiB pages (madvise MADV_HUGEPAGE) where the kernel gives them only on request. The CLI's
+// 1080p run touches ~1.9 GB of fresh memory; faulting it in 4 KiB pages took about a third of its
+// time (bench/RESULTS.md, "Huge pages"; docs/api.md, "Memory").
 #pragma once
 
 #include <cstddef>
