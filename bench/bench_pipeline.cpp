@@ -46,6 +46,7 @@
 #include <nlohmann/json.hpp>
 
 #include "bench_common.hpp"
+#include "huge_pages.hpp"
 #include "proden/accumulator.hpp"
 #include "proden/io/image_writer.hpp"
 #include "proden/io/pass_reader.hpp"
@@ -217,9 +218,10 @@ int main(int argc, char** argv) {
   }
   std::printf(
       "default pipeline (NL-means r=5 f=3, closed-form Stein mixer r=12, t-test, tile 256); "
-      "threads 1 and %u; estimate and pipeline: %s\n",
+      "threads 1 and %u; estimate and pipeline: %s; large blocks on huge pages: %s\n",
       cores,
-      repeat > 1 ? ("median of " + std::to_string(repeat) + " warm runs").c_str() : "one cold run");
+      repeat > 1 ? ("median of " + std::to_string(repeat) + " warm runs").c_str() : "one cold run",
+      huge_pages_name(huge_pages()));
   for (const auto& [W, H] : sizes) {
     SizeResult s;
     s.w = W;
@@ -469,8 +471,10 @@ int main(int argc, char** argv) {
       return 1;
     }
     // "frame": the real frame's passes ([] = synthetic).
-    std::fprintf(f, "{\n \"threads\": %u,\n \"repeat\": %d,\n \"frame\": %s,\n \"sizes\": [\n",
-                 cores, repeat, nlohmann::json(real).dump().c_str());
+    std::fprintf(f,
+                 "{\n \"threads\": %u,\n \"repeat\": %d,\n \"huge_pages\": \"%s\",\n \"frame\": "
+                 "%s,\n \"sizes\": [\n",
+                 cores, repeat, huge_pages_name(huge_pages()), nlohmann::json(real).dump().c_str());
     for (std::size_t i = 0; i < results.size(); ++i) {
       const SizeResult& s = results[i];
       std::fprintf(

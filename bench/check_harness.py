@@ -56,6 +56,8 @@ def main():
                   "jacobian_over_denoise_paired", "threads_speedup"):
             if not finite(r[k]):
                 fail(f"ratio {k} = {r[k]}")
+        if p["huge_pages"] not in ("advised", "always", "off", "sanitizer"):
+            fail(f"huge_pages = {p['huge_pages']}")
         if not p["sgemm"]["gflops_1"] > 0:
             fail("sgemm")
         if p["frame"] != []:

@@ -22,6 +22,19 @@ import harness  # noqa: E402
 from harness import Daemon, SseClient, TempRoot, place_atomic, wait_until  # noqa: E402
 
 
+def huge_pages():
+    """What the daemon does with large blocks (service/huge_pages.hpp): PRODEN_HUGE_PAGES=off,
+    else the kernel's THP mode, the bracketed word of its sysfs file ("madvise": advised)."""
+    if os.environ.get("PRODEN_HUGE_PAGES") in ("off", "0"):
+        return "off"
+    try:
+        with open("/sys/kernel/mm/transparent_hugepage/enabled") as f:
+            mode = f.read()
+    except OSError:
+        return "off"
+    return "advised" if "[madvise]" in mode else "always" if "[always]" in mode else "off"
+
+
 def metric_sums(d):
     s, h, body = d.request("GET", "/metrics")
     out = {}
@@ -90,7 +103,8 @@ def latency(args, root):
         with open(args.json, "w") as f:
             json.dump({"latency_s": rows, "stages": {k: v[0] for k, v in stages.items()},
                        "compressed_later": compressed, "gap_s": args.gap,
-                       "features": args.features, "compression": args.compression}, f, indent=1)
+                       "features": args.features, "compression": args.compression,
+                       "huge_pages": huge_pages()}, f, indent=1)
 
 
 FEATURE_CHANNELS = "R,G,B,Albedo.R,Albedo.G,Albedo.B,Normal.X,Normal.Y,Normal.Z,Depth.Z"
@@ -330,7 +344,7 @@ def lag(args, root):
         with open(args.json, "w") as f:
             json.dump({"reference": ref, "reference_stages": ref_stages, "frames": args.frames,
                        "resident": args.resident, "compression": args.compression,
-                       "seconds": args.seconds, "runs": results}, f)
+                       "seconds": args.seconds, "huge_pages": huge_pages(), "runs": results}, f)
     if args.png:
         lag_plot(results, update, args.png, load_baseline(args), args.label, args.baseline_label)
 
