@@ -96,6 +96,7 @@ inline void serial_denoise(const Denoiser& den, const DenoiseInputs& din, int ti
 // so that the VM's slow minutes weigh on both halves of every ratio.
 struct JacobianPair {
   double without = 0, with = 0;
+  double cost() const { return with / without - 1.0; }  // the Jacobian's, over the denoiser's
 };
 inline JacobianPair jacobian_pair(const Denoiser& den, const DenoiseInputs& din, int tile,
                                   bool jacobian_first) {

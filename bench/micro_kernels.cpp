@@ -161,7 +161,7 @@ void BM_NlMeansJacobianCost(benchmark::State& state) {
     const bench::JacobianPair p = bench::jacobian_pair(nl, din, 256, ratio.size() % 2 == 1);
     without.push_back(p.without);
     with.push_back(p.with);
-    ratio.push_back(p.with / p.without - 1.0);
+    ratio.push_back(p.cost());
   }
   if (ratio.empty()) return;
   auto median = [](std::vector<double> v) {

@@ -13,14 +13,6 @@
 #include <cstring>
 #include <new>
 
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define PRODEN_SANITIZER_ALLOCATOR 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-#define PRODEN_SANITIZER_ALLOCATOR 1
-#endif
-#endif
-
 namespace proden {
 namespace {
 

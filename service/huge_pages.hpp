@@ -7,6 +7,15 @@
 
 #include <cstddef>
 
+// Defined in ASan and TSan builds, whose allocators replace malloc and operator new.
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define PRODEN_SANITIZER_ALLOCATOR 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define PRODEN_SANITIZER_ALLOCATOR 1
+#endif
+#endif
+
 namespace proden {
 
 // Smallest block that is advised: it always holds at least one whole 2 MiB page.

@@ -5,18 +5,12 @@
 #include <vector>
 
 #include "daemon/memory.hpp"
+#include "huge_pages.hpp"
 
 using namespace proden::daemon;
 
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
-#define PRODEN_OWN_ALLOCATOR 1  // the sanitizers replace malloc: glibc's trim has nothing to do
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-#define PRODEN_OWN_ALLOCATOR 1
-#endif
-#endif
-
-#if defined(__GLIBC__) && !defined(PRODEN_OWN_ALLOCATOR)
+// Under the sanitizers' own allocator glibc's trim has nothing to do.
+#if defined(__GLIBC__) && !defined(PRODEN_SANITIZER_ALLOCATOR)
 TEST_CASE("Memory: free pages between live blocks go back to the system", "[daemon][memory]") {
   // 64 MiB of small blocks, then all but one in 64 freed: the heap cannot shrink from its top
   // (live blocks are spread through it), yet most of its pages hold nothing.
