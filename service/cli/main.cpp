@@ -10,6 +10,7 @@
 #include "cli/options.hpp"
 #include "cli/wait.hpp"
 #include "daemon/serve.hpp"
+#include "huge_pages.hpp"
 #include "proden/protocol/publish.hpp"
 #include "thread_limit.hpp"
 
@@ -69,7 +70,8 @@ int main(int argc, char** argv) {
   w->add_flag("--json", wt.json, "Print the frame status as JSON");
   w->add_flag("-q,--quiet", wt.quiet, "Print nothing; the exit code says");
 
-  proden::daemon::add_serve_command(app);  // `proden serve`: runs the daemon and exits
+  // `proden serve`: runs the daemon and exits; its start-up line says how large blocks are paged.
+  proden::daemon::add_serve_command(app, huge_pages_name(huge_pages()));
 
   try {
     app.parse(argc, argv);

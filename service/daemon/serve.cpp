@@ -86,6 +86,7 @@ struct ServeFlags {
   std::string config_file, bind, state_dir, token_file, log_level;
   std::vector<std::string> roots;
   int port = -1, workers = 0, poll_ms = 0, settle_ms = 0;
+  std::string large_blocks;  // not a flag: add_serve_command's argument
   bool print_config = false;
 };
 
@@ -132,13 +133,14 @@ int serve_main(const ServeFlags& f) {
     spdlog::error("{}", e.what());
     return 2;
   }
-  return run_serve(c, token);
+  return run_serve(c, token, f.large_blocks);
 }
 
 }  // namespace
 
-void add_serve_command(CLI::App& app) {
+void add_serve_command(CLI::App& app, std::string large_blocks) {
   auto flags = std::make_shared<ServeFlags>();
+  flags->large_blocks = std::move(large_blocks);
   auto* s = app.add_subcommand("serve", "Run the daemon: watch, accumulate, publish, serve HTTP");
   s->add_option("--config", flags->config_file, "JSON config file (flags override it)");
   s->add_option("--bind", flags->bind, "Address to bind (default 127.0.0.1)");
@@ -163,7 +165,7 @@ void add_serve_command(CLI::App& app) {
   });
 }
 
-int run_serve(Config c, const std::string& token) {
+int run_serve(Config c, const std::string& token, const std::string& large_blocks) {
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e proden[%t] %^%l%$: %v");
   spdlog::set_level(spdlog::level::from_str(c.log_level));
   if (c.allowed_roots.empty()) {
@@ -235,8 +237,9 @@ int run_serve(Config c, const std::string& token) {
   const std::string host = c.bind.find(':') != std::string::npos ? "[" + c.bind + "]" : c.bind;
   std::printf("listening on http://%s:%u\n", host.c_str(), port);
   std::fflush(stdout);
-  spdlog::info("listening on http://{}:{} (state {}, {} worker(s), token {})", host, port,
-               c.state_dir, c.worker_threads, token.empty() ? "off" : "on");
+  spdlog::info("listening on http://{}:{} (state {}, {} worker(s), token {}{}{})", host, port,
+               c.state_dir, c.worker_threads, token.empty() ? "off" : "on",
+               large_blocks.empty() ? "" : ", huge pages ", large_blocks);
 
   ::pthread_sigmask(SIG_UNBLOCK, &set, nullptr);
   const int sig = wait_stop_signal();

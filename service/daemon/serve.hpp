@@ -3,14 +3,17 @@
 #pragma once
 
 #include <CLI/CLI.hpp>
+#include <string>
 
 namespace proden::daemon {
 
 struct Config;
 
-void add_serve_command(CLI::App& app);
+// `large_blocks`: how the executable allocates large blocks (huge_pages_name() where it links
+// service/huge_pages.cpp), for the start-up log line; empty = not said.
+void add_serve_command(CLI::App& app, std::string large_blocks = {});
 
 // Runs the daemon until SIGTERM/SIGINT; returns a process exit code.
-int run_serve(Config config, const std::string& token);
+int run_serve(Config config, const std::string& token, const std::string& large_blocks = {});
 
 }  // namespace proden::daemon

@@ -306,5 +306,53 @@ class AuthTest(unittest.TestCase):
             self.assertEqual(r.returncode, 2, r.stderr)
 
 
+class StartupLogTest(unittest.TestCase):
+    """The start-up line says how the daemon pages its large blocks (docs/api.md, "Memory")."""
+
+    @staticmethod
+    def thp_mode():
+        try:
+            with open("/sys/kernel/mm/transparent_hugepage/enabled") as f:
+                m = re.search(r"\[(\w+)\]", f.read())
+                return m.group(1) if m else None
+        except OSError:
+            return None
+
+    def logged_mode(self, env_off):
+        saved = os.environ.get("PRODEN_HUGE_PAGES")
+        if env_off:
+            os.environ["PRODEN_HUGE_PAGES"] = "off"
+        else:
+            os.environ.pop("PRODEN_HUGE_PAGES", None)
+        try:
+            with TempRoot() as root:
+                d = Daemon(root).start()
+                try:
+                    found = []
+
+                    def logged():
+                        found[:] = re.findall(r"listening on .*huge pages (\w+)\)", d.read_log())
+                        return bool(found)
+                    wait_until(logged, 10)
+                    return found[-1]
+                finally:
+                    self.assertEqual(d.stop(), 0)
+        finally:
+            if saved is None:
+                os.environ.pop("PRODEN_HUGE_PAGES", None)
+            else:
+                os.environ["PRODEN_HUGE_PAGES"] = saved
+
+    def test_logs_how_large_blocks_are_paged(self):
+        want = {"madvise": "advised", "always": "always"}.get(self.thp_mode(), "off")
+        default, off = self.logged_mode(env_off=False), self.logged_mode(env_off=True)
+        if default == "sanitizer":
+            # A sanitizer build keeps its own allocator and says so, whatever the environment.
+            self.assertEqual(off, "sanitizer")
+        else:
+            self.assertEqual(default, want)
+            self.assertEqual(off, "off")
+
+
 if __name__ == "__main__":
     unittest.main(verbosity=2)
