@@ -53,8 +53,9 @@ struct Setup {
   bool dof = false;    // compute Welch-Satterthwaite degrees of freedom (else exact variance)
   double sigma_scale = 100.0, sigma_floor = 1e-3;
   // A pixel whose three statistics are all at or below this needs its dof only as "finite" (the
-  // rejection curve's RejectionCurve::dof_free_t): the kernel then skips the scalar part of the
-  // sum over the highest-variance pixel's box, and reports dof 1 when it is finite. -1 (never):
+  // rejection curve's RejectionCurve::dof_free_t: any finite dof gives a keep factor within
+  // kDofFreeKeepTolerance of any other): the kernel then skips the scalar part of the sum over
+  // the highest-variance pixel's box, and reports dof 1 when it is finite. -1 (never):
   // t_statistic, which reports the dof itself.
   double dof_free_t = -1.0;
 };
@@ -291,6 +292,12 @@ RejectionCurve::RejectionCurve(double t0, double slope) : t0_(t0), slope_(slope)
   }
   keep_lo_ = upper_normal_tail(slope_ * (u_lo_ - t0_));
   keep_hi_ = upper_normal_tail(slope_ * (u_lo_ + du_ * (u_cols_ - 1) - t0_));
+  // The largest t whose infinite-dof keep, 1 - Phi(slope (t - t0)), is within the tolerance of
+  // keep_lo_ (the curve falls with t), and never below the first node's exact bound.
+  namespace bm = boost::math;
+  const double tail = std::min(1.0 - keep_lo_ + kDofFreeKeepTolerance, 0.5);
+  dof_free_t_ = std::max(first_t_.front(),
+                         t0_ + bm::quantile(bm::normal_distribution<double>(), tail) / slope_);
 }
 
 const RejectionCurve& RejectionCurve::shared(double t0, double slope) {

@@ -88,6 +88,19 @@ TEST_CASE("the tabulated rejection curve matches Boost.Math", "[ttest][quantile]
     for (double t : {0.0, 1.0, t0, t0 + 0.3, 10.0}) {
       CHECK(curve.keep(t, INFINITY) == upper_tail(slope * (t - t0)));
     }
+    // dof_free_t: up to it every dof's exact keep is within 1e-5 of the first node's, and a
+    // little above it the infinite dof's is not.
+    const double u_lo = std::max(0.0, t0 - 6.0 / slope), keep_lo = upper_tail(slope * (u_lo - t0));
+    CHECK(curve.dof_free_t() >= u_lo);
+    for (double f : {0.0, 0.5, 0.9, 1.0}) {
+      const double t = f * curve.dof_free_t();
+      for (double dof : {1.0, 2.0, 3.0, 30.0, 1e4, double(INFINITY)}) {
+        INFO("t0 " << t0 << " t " << t << " dof " << dof);
+        const double u = RejectionCurve::exact_normal_score(t, dof);
+        CHECK(std::abs(upper_tail(slope * (u - t0)) - keep_lo) <= 1e-5 + 1e-12);
+      }
+    }
+    CHECK(keep_lo - upper_tail(slope * (curve.dof_free_t() + 0.05 - t0)) > 1e-5);
     // Below and beyond the grid: exact at t = 0 (u = 0), flat within 1e-9 past t0 + 6 / slope.
     CHECK(curve.keep(0.0, 3.0) == Approx(upper_tail(-slope * t0)).margin(1e-8));
     CHECK(curve.keep(1e300, 1.0) < 1e-8);
@@ -315,8 +328,10 @@ TEST_CASE("every t-test kernel build gives the same bits", "[ttest][isa]") {
 
 TEST_CASE("t_rescale keeps alpha by the curve at each pixel's statistic and dof", "[ttest][dof]") {
   // t_rescale skips the dof's last sum where all three t are too low for it to matter
-  // (RejectionCurve::dof_free_t); t_statistic always computes it. Low and high t, few passes
-  // (where the dof moves the threshold most), and a region of exactly zero variance.
+  // (RejectionCurve::dof_free_t: the keep factor moves by at most 1e-5 there); t_statistic always
+  // computes it. Low and high t, few passes (where the dof moves the threshold most), and a region
+  // of exactly zero variance. The bound is written out here, not read from
+  // kDofFreeKeepTolerance, so that a looser constant fails.
   const int W = 37, H = 21, pool = 2;
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<float> un(0.0f, 1.0f);
@@ -339,6 +354,7 @@ TEST_CASE("t_rescale keeps alpha by the curve at each pixel's statistic and dof"
   const Image pooled = pool_variance(var, pool);
   const VarianceOrigin origin{view_of(passes), false, pool, view_of(var)};
   const TTestParams fine{.radius = 2, .sigma_scale = 0.0f, .sigma_floor = 1.0f};
+  int skipped = 0;  // pixels whose dof only the tolerance lets t_rescale skip (both tests)
   for (const TTestParams& p : {TTestParams{}, fine}) {
     const RejectionCurve& curve = RejectionCurve::shared(p.t0, p.slope);
     const Rect whole{0, 0, W, H};
@@ -352,10 +368,18 @@ TEST_CASE("t_rescale keeps alpha by the curve at each pixel's statistic and dof"
         double keep[3];
         curve.keep(st.t, 3, st.dof, keep);
         const double tmax = std::max({st.t[0], st.t[1], st.t[2]});
-        (tmax <= curve.dof_free_t() ? low : high) += 1;
+        const bool no_dof = tmax <= curve.dof_free_t();
+        (no_dof ? low : high) += 1;
+        // Skipped only by the tolerance: above the first node's exact bound.
+        skipped += no_dof && tmax > p.t0 - 6.0 / p.slope ? 1 : 0;  // the first node's t at dof inf
         for (int c = 0; c < 3; ++c) {
           INFO("pixel " << xx << "," << y << " t " << st.t[c] << " dof " << st.dof);
-          CHECK(r.at(xx, y, c) == static_cast<float>(alpha.at(xx, y, c) * keep[c]));
+          const float want = static_cast<float>(alpha.at(xx, y, c) * keep[c]);
+          if (no_dof) {
+            CHECK(std::abs(r.at(xx, y, c) - want) <= 1e-5f * alpha.at(xx, y, c) + 1e-7f);
+          } else {
+            CHECK(r.at(xx, y, c) == want);
+          }
           rejected += keep[c] < 0.5 ? 1 : 0;
         }
       }
@@ -365,6 +389,7 @@ TEST_CASE("t_rescale keeps alpha by the curve at each pixel's statistic and dof"
     CHECK(high > 50);
     CHECK(rejected > 50);
   }
+  CHECK(skipped > 10);
 }
 
 namespace {

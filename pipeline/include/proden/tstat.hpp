@@ -66,6 +66,10 @@ double student_t_quantile(double dof, double upper_tail);
 // the quantile at their tail probability 1 - Phi(t0). dof_correction off: t0.
 double t_threshold(const TTestParams& params, double dof);
 
+// How far from its true value the t-test may set a keep factor whose dof it skipped
+// (RejectionCurve::dof_free_t): 50x below the tabulated curve's own error bound (5e-4, tests).
+inline constexpr double kDofFreeKeepTolerance = 1e-5;
+
 // The soft rejection curve keep(t, dof) = 1 - Phi(slope (u - t0)) with u = Phi^-1(F_dof(t)) the
 // normal score of t under Student-t with `dof` degrees of freedom: with infinite dof u = t, the
 // authors' curve. Tabulated once per (t0, slope) over u (steps of 0.1 within t0 +- 6 / slope, where
@@ -82,9 +86,13 @@ class RejectionCurve {
   // keep for n statistics sharing one dof (the row is interpolated once).
   void keep(const double* t, int n, double dof, double* out) const;
   static double exact_normal_score(double t, double dof);  // Boost.Math, for tests
-  // Statistics at or below this keep the same factor whatever their finite dof (every row starts
-  // at or above it): the t-test need not compute the dof of a pixel whose t are all this low.
-  double dof_free_t() const { return first_t_.front(); }
+  // Statistics at or below this keep the first node's factor within kDofFreeKeepTolerance,
+  // whatever their finite dof: the t-test need not compute the dof of a pixel whose t are all
+  // this low, and gives it that factor. Every row starts at or above the infinite-dof row, so a
+  // finite dof's keep lies between the infinite-dof curve and the first node's value; up to
+  // dof_free_t the infinite-dof curve is within the tolerance of that value (t <= 2.07 with the
+  // defaults, where the exact bound, the first node, is t <= 1.2).
+  double dof_free_t() const { return dof_free_t_; }
 
  private:
   struct Row {  // the table interpolated at one dof
@@ -94,6 +102,7 @@ class RejectionCurve {
   Row row(double dof) const;
   double normal_score(const Row& r, double t) const;
   double t0_, slope_, u_lo_, du_, keep_lo_, keep_hi_;  // keep at the first and last node
+  double dof_free_t_ = 0.0;
   int nu_rows_, u_cols_;
   std::vector<double> table_;             // asinh(t) at [row * u_cols_ + col]
   std::vector<double> first_t_, last_t_;  // t at each row's first and last node
