@@ -22,19 +22,6 @@ import harness  # noqa: E402
 from harness import Daemon, SseClient, TempRoot, place_atomic, wait_until  # noqa: E402
 
 
-def huge_pages():
-    """What the daemon does with large blocks (service/huge_pages.hpp): PRODEN_HUGE_PAGES=off,
-    else the kernel's THP mode, the bracketed word of its sysfs file ("madvise": advised)."""
-    if os.environ.get("PRODEN_HUGE_PAGES") in ("off", "0"):
-        return "off"
-    try:
-        with open("/sys/kernel/mm/transparent_hugepage/enabled") as f:
-            mode = f.read()
-    except OSError:
-        return "off"
-    return "advised" if "[madvise]" in mode else "always" if "[always]" in mode else "off"
-
-
 def metric_sums(d):
     s, h, body = d.request("GET", "/metrics")
     out = {}
@@ -89,6 +76,7 @@ def latency(args, root):
     time.sleep(args.gap)
     stages = stage_means(d)
     compressed = harness.metric(d, "proden_publish_compressed_later_total")
+    huge_pages = d.huge_pages()
     d.stop()
     print("1920x1080 generic %s float EXR passes (%.1f MB each), settle %d ms, 2 workers, "
           "%.0f s idle between passes, output.compression %s" %
@@ -104,7 +92,7 @@ def latency(args, root):
             json.dump({"latency_s": rows, "stages": {k: v[0] for k, v in stages.items()},
                        "compressed_later": compressed, "gap_s": args.gap,
                        "features": args.features, "compression": args.compression,
-                       "huge_pages": huge_pages()}, f, indent=1)
+                       "huge_pages": huge_pages}, f, indent=1)
 
 
 FEATURE_CHANNELS = "R,G,B,Albedo.R,Albedo.G,Albedo.B,Normal.X,Normal.Y,Normal.Z,Depth.Z"
@@ -248,10 +236,11 @@ def lag_reference(root, paths, resident=None, compression=None):
         wait_until(lambda: log.first_at(1, i + 1), 600, interval=0.02, what="reference update")
         rows.append(log.first_at(1, i + 1) - t0)
     stages = stage_means(d)
+    huge_pages = d.huge_pages()
     log.stop = True
     d.stop()
     shutil.rmtree(d.root, ignore_errors=True)
-    return rows, stages
+    return rows, stages, huge_pages
 
 
 def lag_run(root, paths, frames, rate, seconds, drain_s, resident=None, compression=None):
@@ -315,7 +304,7 @@ def lag(args, root):
     print("1920x1080 generic float EXR passes with features (%s; %.1f MB each), %d distinct "
           "(made in %.0f s), placed by hard link + rename" % (
               FEATURE_CHANNELS, os.path.getsize(paths[0]) / 1e6, len(paths), time.monotonic() - t0))
-    ref, ref_stages = lag_reference(root, paths, args.resident, args.compression)
+    ref, ref_stages, huge_pages = lag_reference(root, paths, args.resident, args.compression)
     update = ref[1]
     print("reference: one pass into an idle daemon, rename -> frame event: first %.2f s, second "
           "%.2f s (the update time U below is the second)" % (ref[0], ref[1]))
@@ -344,7 +333,7 @@ def lag(args, root):
         with open(args.json, "w") as f:
             json.dump({"reference": ref, "reference_stages": ref_stages, "frames": args.frames,
                        "resident": args.resident, "compression": args.compression,
-                       "seconds": args.seconds, "huge_pages": huge_pages(), "runs": results}, f)
+                       "seconds": args.seconds, "huge_pages": huge_pages, "runs": results}, f)
     if args.png:
         lag_plot(results, update, args.png, load_baseline(args), args.label, args.baseline_label)
 

@@ -84,6 +84,18 @@ class Daemon:
         self.proc.kill()
         raise AssertionError("daemon did not start: %r; log:\n%s" % (line, self.read_log()))
 
+    def huge_pages(self, timeout=10.0):
+        """How this run of the daemon pages its large blocks (advised, always, off, sanitizer), as
+        its start-up log line says (docs/api.md, "Memory")."""
+        line = re.compile(rb"listening on .*huge pages (\w+)\)")
+
+        def logged():
+            with open(self.log, "rb") as f:
+                f.seek(self.log_start)
+                m = line.search(f.read())
+            return m.group(1).decode() if m else None
+        return wait_until(logged, timeout, what="the start-up line's huge-page mode")
+
     def read_log(self):
         try:
             with open(self.log, "rb") as f:

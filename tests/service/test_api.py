@@ -328,13 +328,7 @@ class StartupLogTest(unittest.TestCase):
             with TempRoot() as root:
                 d = Daemon(root).start()
                 try:
-                    found = []
-
-                    def logged():
-                        found[:] = re.findall(r"listening on .*huge pages (\w+)\)", d.read_log())
-                        return bool(found)
-                    wait_until(logged, 10)
-                    return found[-1]
+                    return d.huge_pages()
                 finally:
                     self.assertEqual(d.stop(), 0)
         finally:
