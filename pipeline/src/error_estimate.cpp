@@ -156,15 +156,20 @@ ElementError sure_error(double v, double a, double d, double sure) {
           (1.0 - a) * (1.0 - a) * v};
 }
 
-ElementError cv_error(double v, double a, double d, double cv_square, double cv_variance) {
-  // The same e with m = (cv_square - cv_variance) kHalfToFullMse: the variance part scales with
-  // the variance estimate, the squares and d^2 are measured.
+ElementError cv_error(double v, double a, double d, double cv_square, double cv_variance,
+                      std::optional<double> cv_spread) {
+  // The same e with m = (cv_square - cv_variance) kHalfToFullMse, or for a linear denoiser
+  // m = cv_square - cv_variance - cv_spread (its bias and its variance at the full frame's samples,
+  // docs/error_estimate.md): the variance part scales with the variance estimate, the squares and
+  // d^2 are measured.
   v = std::max(0.0, finite_or_zero(v));
   a = finite_or_zero(a);
   d = finite_or_zero(d);
   const double vh = std::max(0.0, finite_or_zero(cv_variance));
-  return {(1.0 - a) * v - a * kHalfToFullMse * vh,
-          a * kHalfToFullMse * finite_or_zero(cv_square) - a * (1.0 - a) * d * d,
+  const double q = finite_or_zero(cv_square);
+  const double c = cv_spread ? 1.0 : kHalfToFullMse;
+  const double measured = cv_spread ? q - std::max(0.0, finite_or_zero(*cv_spread)) : c * q;
+  return {(1.0 - a) * v - a * c * vh, a * measured - a * (1.0 - a) * d * d,
           (1.0 - a) * (1.0 - a) * v};
 }
 
@@ -189,7 +194,9 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   if (cv) {
     check(in.cv_square, x, "the cross-validation square");
     check(in.cv_variance, x, "the cross-validation variance");
+    if (in.cv_spread) check(in.cv_spread, x, "the cross-validation spread");
   }
+  const bool spread = cv && in.cv_spread != nullptr;
   if (!(ctx.confidence > 0.0 && ctx.confidence < 1.0)) {
     throw std::invalid_argument("estimate_error: confidence must be in (0, 1)");
   }
@@ -206,7 +213,7 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   const Plane zmax = denoised ? Plane() : plane(n);
   for (int c = 0; c < 3; ++c) {
     const auto xv = x.plane(c), vv = in.variance->plane(c), zv = in.result->plane(c);
-    std::span<const float> yv, av, sv, qv, bv;
+    std::span<const float> yv, av, sv, qv, bv, pv;
     if (denoised) {
       yv = in.denoised->plane(c);
       av = in.alpha->plane(c);
@@ -215,6 +222,7 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
     if (cv) {
       qv = in.cv_square->plane(c);
       bv = in.cv_variance->plane(c);
+      if (spread) pv = in.cv_spread->plane(c);
     }
     // Per element: the error terms (below), then the relMSE weights from the stand-in.
     for (std::size_t i = 0; i < n; ++i) {
@@ -224,8 +232,9 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
       // low (noisy features correlated with x's noise) can take the mean below it.
       const double a = denoised ? av[i] : 0.0;
       const double d = denoised ? static_cast<double>(yv[i]) - xv[i] : 0.0;
+      const std::optional<double> p = spread ? std::optional<double>(pv[i]) : std::nullopt;
       const ElementError el = !denoised ? render_error(vv[i])
-                              : cv      ? cv_error(vv[i], a, d, qv[i], bv[i])
+                              : cv      ? cv_error(vv[i], a, d, qv[i], bv[i], p)
                                         : sure_error(vv[i], a, d, sv[i]);
       const double ev = el.scaled, ed = el.measured, f = el.floor;
       EV[i] = ev;

@@ -184,9 +184,9 @@ const DenoiserEntry kDenoisers[] = {
      [](const PipelineOptions&) { return EstimateOptions{.halves = false, .features = false}; }},
 };
 
-constexpr std::array<std::string_view, 9> kLayerNames = {
+constexpr std::array<std::string_view, 10> kLayerNames = {
     layer::result, layer::render,       layer::variance,  layer::denoised,    layer::alpha,
-    layer::sure,   layer::mix_variance, layer::cv_square, layer::cv_variance,
+    layer::sure,   layer::mix_variance, layer::cv_square, layer::cv_variance, layer::cv_spread,
 };
 
 }  // namespace
@@ -252,11 +252,12 @@ std::span<const std::string_view> layer_names() {
 
 std::vector<std::pair<std::string_view, const Image*>> PipelineResult::layers() const {
   using Named = std::pair<std::string_view, const Image*>;
-  const std::array<Named, 8> all = {
+  const std::array<Named, 9> all = {
       Named{layer::render, &render},       Named{layer::variance, &variance},
       Named{layer::denoised, &denoised},   Named{layer::alpha, &alpha},
       Named{layer::sure, &sure},           Named{layer::mix_variance, &mix_variance},
-      Named{layer::cv_square, &cv_square}, Named{layer::cv_variance, &cv_variance}};
+      Named{layer::cv_square, &cv_square}, Named{layer::cv_variance, &cv_variance},
+      Named{layer::cv_spread, &cv_spread}};
   std::vector<Named> out;
   for (const auto& named : all) {
     if (!named.second->empty()) out.push_back(named);
@@ -701,6 +702,7 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
     // two directions: cv = ((y_A - x_B)^2 + (y_B - x_A)^2) / 2, cv_var = (v_A + v_B) / 2.
     res.cv_square = Image(W, H, 3, 0.0f);
     res.cv_variance = Image(W, H, 3, 0.0f);
+    if (denoiser.linear()) res.cv_spread = Image(W, H, 3, 0.0f);
     for (int h = 0; h < 2; ++h) {
       Scratch::Half& hs = s.cv;
       sanitize_into(frame.half_mean[h], -kMaxValue, kMaxValue, hs.x);
@@ -760,10 +762,31 @@ PipelineResult Pipeline::execute(const FrameEstimate& frame, const ErrorContext&
           const double d = static_cast<double>(yh[px]) - sanitized(xo[px], -kMaxValue, kMaxValue);
           q[px] = static_cast<float>(std::min(q[px] + 0.5 * d * d, double{kMaxVariance}));
         }
+        if (!denoiser.linear()) return;
+        // A linear filter's bias is the same in both half runs, so they differ only by their
+        // noise: E[(y_A - y_B)^2] = Var[y_A] + Var[y_B]. Of that, cv_square holds one half, and
+        // the full run keeps w_A w_B of it, w_h the halves' shares of the samples (Var[x_h] is one
+        // per-sample variance over each half's own samples, so w_A w_B = v_A v_B / (v_A + v_B)^2).
+        // cv_spread keeps y_A until half B's run, then the difference (docs/error_estimate.md).
+        float* sp = res.cv_spread.plane(c).data() + static_cast<std::size_t>(py) * W;
+        if (h == 0) {
+          std::copy(yh, yh + W, sp);
+          return;
+        }
+        const float* va = frame.half_variance[0].plane(c).data() + static_cast<std::size_t>(py) * W;
+        const float* vb = frame.half_variance[1].plane(c).data() + static_cast<std::size_t>(py) * W;
+        for (int px = 0; px < W; ++px) {
+          const double a = sanitized(va[px], 0.0f, kMaxVariance);
+          const double b = sanitized(vb[px], 0.0f, kMaxVariance);
+          const double share = a + b > 0.0 ? a * b / ((a + b) * (a + b)) : 0.25;
+          const double d = static_cast<double>(sp[px]) - yh[px];
+          sp[px] = static_cast<float>(std::min((0.5 - share) * d * d, double{kMaxVariance}));
+        }
       });
     }
     ein.cv_square = &res.cv_square;
     ein.cv_variance = &res.cv_variance;
+    if (!res.cv_spread.empty()) ein.cv_spread = &res.cv_spread;
   }
   res.estimated_error = estimate_error(ein, error);
   res.timings.wall = seconds(t_start, Clock::now());

@@ -14,6 +14,7 @@
 #include "daemon/pass_pattern.hpp"
 #include "daemon/web_assets.hpp"
 #include "proden/io/text.hpp"
+#include "proden/progressive.hpp"
 
 namespace proden::daemon {
 
@@ -70,8 +71,9 @@ json colour_maps_json() {
     maps[std::string(name(cm))] = colour_stops(cm, 32);
   }
   json layers = json::object();
-  for (const char* l : {"result", "render", "denoised", "alpha", "variance", "mixvariance", "sure",
-                        "cvsquare", "cvvariance", "error"}) {
+  std::vector<std::string> names(layer_names().begin(), layer_names().end());
+  names.emplace_back("error");  // drawn from the layers (PreviewCache), not written itself
+  for (const std::string& l : names) {
     const LayerView v = layer_view(l);
     if (v.colour) {
       layers[l] = {{"kind", "colour"}};

@@ -29,7 +29,7 @@ float srgb(float linear) {
 LayerView layer_view(std::string_view layer) {
   if (layer == "alpha") return {false, ColourMap::viridis, Scale::linear};
   if (layer == "variance" || layer == "mixvariance" || layer == "sure" || layer == "cvsquare" ||
-      layer == "cvvariance" || layer == "error") {
+      layer == "cvvariance" || layer == "cvspread" || layer == "error") {
     return {false, ColourMap::magma, Scale::log};
   }
   return {true, ColourMap::viridis, Scale::linear};
@@ -166,18 +166,20 @@ Rgb8 apply_colour_map(std::span<const float> values, int width, int height, Colo
 
 Image result_error(const Image& render, const Image& variance, const Image& denoised,
                    const Image& alpha, const Image& sure, const Image* cv_square,
-                   const Image* cv_variance) {
+                   const Image* cv_variance, const Image* cv_spread) {
   Image out(render.width(), render.height(), render.channels());
   const auto x = render.data(), v = variance.data(), y = denoised.data(), a = alpha.data(),
              s = sure.data();
   const bool cv = cv_square && cv_variance && cv_square->data().size() == x.size() &&
                   cv_variance->data().size() == x.size();
+  const bool spread = cv && cv_spread && cv_spread->data().size() == x.size();
   auto e = out.data();
   const std::size_t n = std::min({x.size(), v.size(), y.size(), a.size(), s.size()});
   for (std::size_t i = 0; i < n; ++i) {
     const double d = static_cast<double>(y[i]) - x[i];
     const ElementError el =
-        cv ? cv_error(v[i], a[i], d, cv_square->data()[i], cv_variance->data()[i])
+        cv ? cv_error(v[i], a[i], d, cv_square->data()[i], cv_variance->data()[i],
+                      spread ? std::optional<double>(cv_spread->data()[i]) : std::nullopt)
            : sure_error(v[i], a[i], d, s[i]);
     e[i] = static_cast<float>(std::max(el.value(), el.floor));
   }

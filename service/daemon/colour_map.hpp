@@ -65,11 +65,12 @@ Rgb8 apply_colour_map(std::span<const float> values, int width, int height, Colo
 
 // The result's estimated squared error per pixel and channel, from the published layers: the
 // summand of the frame's estimated error (proden::sure_error, or proden::cv_error when the
-// cross-validation layers are given: docs/error_estimate.md), floored per pixel at the render's
+// cross-validation layers are given, with `cv_spread` for a linear denoiser:
+// docs/error_estimate.md), floored per pixel at the render's
 // share (1-a)^2 Var[x] so the map is positive where the estimate is (its mean can exceed the
 // frame's estimated mse, which floors the mean instead).
 Image result_error(const Image& render, const Image& variance, const Image& denoised,
                    const Image& alpha, const Image& sure, const Image* cv_square = nullptr,
-                   const Image* cv_variance = nullptr);
+                   const Image* cv_variance = nullptr, const Image* cv_spread = nullptr);
 
 }  // namespace proden::daemon

@@ -46,10 +46,11 @@ std::string fmt(double v) {
 
 // Reads the layers `error` is computed from; empty Image when one is missing.
 Image read_error_layer(const std::string& exr) {
-  const std::vector<Image> l =
-      io::read_layers(exr, {"render", "variance", "denoised", "alpha", "sure",
-                            std::string(layer::cv_square), std::string(layer::cv_variance)});
-  const Image &x = l[0], &v = l[1], &y = l[2], &a = l[3], &s = l[4], &q = l[5], &qv = l[6];
+  const std::vector<Image> l = io::read_layers(
+      exr, {"render", "variance", "denoised", "alpha", "sure", std::string(layer::cv_square),
+            std::string(layer::cv_variance), std::string(layer::cv_spread)});
+  const Image &x = l[0], &v = l[1], &y = l[2], &a = l[3], &s = l[4], &q = l[5], &qv = l[6],
+              &sp = l[7];
   const auto fits = [&x](const Image& i) {
     return !i.empty() && i.same_size(x) && i.channels() == x.channels();
   };
@@ -57,7 +58,8 @@ Image read_error_layer(const std::string& exr) {
     if (!fits(*i)) return {};
   }
   // The cross-validation layers, when the estimate used them (docs/error_estimate.md).
-  return fits(q) && fits(qv) ? result_error(x, v, y, a, s, &q, &qv) : result_error(x, v, y, a, s);
+  if (!fits(q) || !fits(qv)) return result_error(x, v, y, a, s);
+  return result_error(x, v, y, a, s, &q, &qv, fits(sp) ? &sp : nullptr);
 }
 
 }  // namespace

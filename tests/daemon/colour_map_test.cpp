@@ -27,7 +27,8 @@ TEST_CASE("colour_map: layers are drawn by kind", "[daemon][colour_map]") {
   CHECK_FALSE(alpha.colour);
   CHECK(alpha.scale == Scale::linear);
   CHECK(alpha.map == ColourMap::viridis);
-  for (const char* l : {"variance", "mixvariance", "sure", "cvsquare", "cvvariance", "error"}) {
+  for (const char* l :
+       {"variance", "mixvariance", "sure", "cvsquare", "cvvariance", "cvspread", "error"}) {
     CHECK_FALSE(layer_view(l).colour);
     CHECK(layer_view(l).scale == Scale::log);
     CHECK(layer_view(l).map == ColourMap::magma);

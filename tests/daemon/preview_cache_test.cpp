@@ -106,8 +106,9 @@ TEST_CASE("PreviewCache: a layer the frame lacks is 404", "[daemon][preview]") {
 namespace {
 
 // A published EXR with every layer the pipeline writes (alpha a gradient, errors positive).
-// With `cv`, also the error estimate's cross-validation layers (docs/error_estimate.md).
-fs::path write_full(const test::TempDir& t, bool cv = false) {
+// With `cv`, also the error estimate's cross-validation layers (docs/error_estimate.md), and with
+// `spread` a linear denoiser's `cvspread` among them.
+fs::path write_full(const test::TempDir& t, bool cv = false, bool spread = false) {
   const int w = 16, h = 8;
   std::map<std::string, Image> layers;
   for (const char* n : {"", "render.", "variance.", "denoised.", "alpha.", "sure."}) {
@@ -116,6 +117,7 @@ fs::path write_full(const test::TempDir& t, bool cv = false) {
   if (cv) {
     layers["cvsquare."] = Image(w, h, 3, 4e-4f);
     layers["cvvariance."] = Image(w, h, 3, 1e-4f);
+    if (spread) layers["cvspread."] = Image(w, h, 3, 2e-4f);
   }
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
@@ -131,7 +133,9 @@ fs::path write_full(const test::TempDir& t, bool cv = false) {
   }
   std::vector<io::NamedChannel> ch;
   for (const auto& [n, img] : layers) io::add_layer(ch, n, img);
-  const fs::path p = t.path() / (cv ? "full_cv_0001.exr" : "full_0001.exr");
+  const fs::path p = t.path() / (spread ? "full_spread_0001.exr"
+                                 : cv   ? "full_cv_0001.exr"
+                                        : "full_0001.exr");
   io::write_image(p.string(), w, h, ch);
   return p;
 }
@@ -193,26 +197,34 @@ TEST_CASE("PreviewCache: the error map uses the cross-validation layers when the
   PreviewCache::Request r;
   r.format = "exr";
   r.layer = "error";
-  for (const bool cv : {false, true}) {
-    INFO("cross-validation layers " << cv);
-    const fs::path exr = write_full(t, cv);
+  for (const int kind : {0, 1, 2}) {  // no cross-validation, cross-validation, with a spread
+    INFO("cross-validation layers " << kind);
+    const bool cv = kind > 0, spread = kind == 2;
+    const fs::path exr = write_full(t, cv, spread);
     // A cache of its own per file: renditions are keyed by (version, parameters).
-    const fs::path cache = t.path() / (cv ? "cache_cv" : "cache");
+    const fs::path cache = t.path() / ("cache" + std::to_string(kind));
     const Image got = rendition(pc.get(cache, exr, 1, 1, r).path.string());
     const std::string e = exr.string();
-    const std::vector<Image> l = io::read_layers(
-        e, {"render", "variance", "denoised", "alpha", "sure", "cvsquare", "cvvariance"});
-    const Image &x = l[0], &v = l[1], &y = l[2], &a = l[3], &s = l[4], &q = l[5], &qv = l[6];
+    const std::vector<Image> l = io::read_layers(e, {"render", "variance", "denoised", "alpha",
+                                                     "sure", "cvsquare", "cvvariance", "cvspread"});
+    const Image &x = l[0], &v = l[1], &y = l[2], &a = l[3], &s = l[4], &q = l[5], &qv = l[6],
+                &sp = l[7];
     REQUIRE(q.empty() == !cv);
-    const Image want = cv ? result_error(x, v, y, a, s, &q, &qv) : result_error(x, v, y, a, s);
-    const Image other = cv ? result_error(x, v, y, a, s) : Image{};
+    REQUIRE(sp.empty() == !spread);
+    const Image want = spread ? result_error(x, v, y, a, s, &q, &qv, &sp)
+                       : cv   ? result_error(x, v, y, a, s, &q, &qv)
+                              : result_error(x, v, y, a, s);
+    // What the map would be without the layer that sets this kind apart.
+    const Image other = spread ? result_error(x, v, y, a, s, &q, &qv)
+                        : cv   ? result_error(x, v, y, a, s)
+                               : Image{};
     REQUIRE(got.same_size(want));
     bool differs = false;
     for (std::size_t i = 0; i < want.data().size(); ++i) {
       CHECK(got.data()[i] == Approx(want.data()[i]).margin(1e-9));
       if (cv && std::abs(other.data()[i] - want.data()[i]) > 1e-6f) differs = true;
     }
-    if (cv) CHECK(differs);  // the map is not SURE's
+    if (cv) CHECK(differs);  // the map is not SURE's, nor the bracket's without the spread
   }
 }
 

@@ -200,6 +200,9 @@ class ApiTest(SharedDaemonTest):
         self.assertEqual((s, q["quarantined"]), (200, []))
         s, maps = self.d.json("GET", "/api/v1/colormaps")
         self.assertEqual(maps["layers"]["alpha"], {"kind": "scalar", "colormap": "viridis", "scale": "linear"})
+        # Every layer the pipeline can write is described, cvspread (a linear denoiser's) too.
+        self.assertEqual(maps["layers"]["cvspread"], {"kind": "scalar", "colormap": "magma", "scale": "log"})
+        self.assertIn("error", maps["layers"])
         self.assertEqual(len(maps["colormaps"]["magma"]), 32)
         # A stored upload is removed once accumulated.
         ups = os.path.join(self.d.state, "jobs", jid, "uploads", "12")

@@ -85,6 +85,7 @@ class WholeFrame final : public Denoiser {
   int radius() const override { return inner_->radius(); }
   bool has_derivative() const override { return derivative_ && inner_->has_derivative(); }
   bool whole_frame() const override { return true; }
+  bool linear() const override { return inner_->linear(); }
   void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const override {
     ++calls;
     if (out != Rect{0, 0, in.width, in.height}) ++partial_calls;
@@ -313,12 +314,22 @@ TEST_CASE("denoiser none publishes the render with its variance as the error",
   std::vector<std::string_view> names;
   for (const auto& [name, img] : r.layers()) names.push_back(name);
   CHECK(names == std::vector<std::string_view>{layer::render, layer::variance});
-  // With a denoiser every layer is there, in the vocabulary's order.
-  Pipeline d(small_options());
+  // With a linear denoiser every layer is there, in the vocabulary's order; a data-adaptive one
+  // (the default) has no cvspread (docs/error_estimate.md, "A linear denoiser").
+  PipelineOptions lin = small_options();
+  lin.denoiser = "gaussian";
+  Pipeline d(lin);
   d.commit();
   names.clear();
   for (const auto& [name, img] : d.execute(f).layers()) names.push_back(name);
   CHECK(names == std::vector<std::string_view>(layer_names().begin() + 1, layer_names().end()));
+  Pipeline adaptive(small_options());
+  adaptive.commit();
+  names.clear();
+  for (const auto& [name, img] : adaptive.execute(f).layers()) names.push_back(name);
+  std::vector<std::string_view> want(layer_names().begin() + 1, layer_names().end());
+  std::erase(want, layer::cv_spread);
+  CHECK(names == want);
 }
 
 TEST_CASE("a job's pipeline object parses to the options it names, old spellings included",

@@ -44,6 +44,10 @@ struct ErrorInputs {
   // denoiser's error in place of SURE (which the features' noise biases low):
   const Image* cv_square = nullptr;    // ((y_A - x_B)^2 + (y_B - x_A)^2) / 2
   const Image* cv_variance = nullptr;  // (Var[x_A] + Var[x_B]) / 2
+  // A linear denoiser's (Denoiser::linear) half runs' variance beyond the full run's,
+  // (1/2 - w_A w_B) (y_A - y_B)^2 with w_h the halves' shares of the samples: when set, the
+  // denoiser's error is exactly cv_square - cv_variance - cv_spread (no kHalfToFullMse).
+  const Image* cv_spread = nullptr;
   // Without cross-validation (one pass): the denoiser's SURE is known to be biased low (NFOR's
   // and the cascade's hat diagonal, docs/error_estimate.md), so nothing bounds the estimate from
   // above and no target is met on it.
@@ -60,7 +64,8 @@ inline constexpr double kHalfToFullMse = 0.70710678118654752;
 // the variance estimate, `measured` is not, `floor` = (1-a)^2 Var[x]. With the denoiser's own MSE
 // m:
 //   e = (1-a) v + a m - a (1-a) d^2,  d = y - x,
-// m = SURE(y) (sure_error) or (cv_square - cv_variance) kHalfToFullMse (cv_error). Non-finite
+// m = SURE(y) (sure_error), or (cv_square - cv_variance) kHalfToFullMse (cv_error), or for a
+// linear denoiser cv_square - cv_variance - cv_spread (cv_error with a spread). Non-finite
 // inputs count as 0, as the pipeline's stages see them.
 struct ElementError {
   double scaled = 0.0, measured = 0.0, floor = 0.0;
@@ -68,7 +73,8 @@ struct ElementError {
 };
 ElementError render_error(double v);  // denoiser "none": e = Var[x]
 ElementError sure_error(double v, double a, double d, double sure);
-ElementError cv_error(double v, double a, double d, double cv_square, double cv_variance);
+ElementError cv_error(double v, double a, double d, double cv_square, double cv_variance,
+                      std::optional<double> cv_spread = std::nullopt);
 
 struct EstimatedError {
   // Point estimates (mean over pixels and RGB). mse is max(mean e, mean (1-a)^2 Var[x]) (the

@@ -134,9 +134,10 @@ inline constexpr std::string_view alpha = "alpha";               // alpha' (fina
 inline constexpr std::string_view sure = "sure";                 // SURE of y
 inline constexpr std::string_view mix_variance = "mixvariance";  // Var[x] as mixer/t-test read it
 // The error estimate's cross-validation (docs/error_estimate.md): PipelineResult::cv_square,
-// cv_variance.
+// cv_variance, cv_spread.
 inline constexpr std::string_view cv_square = "cvsquare";
 inline constexpr std::string_view cv_variance = "cvvariance";
+inline constexpr std::string_view cv_spread = "cvspread";
 }  // namespace layer
 // All of them, "result" first.
 std::span<const std::string_view> layer_names();
@@ -172,6 +173,10 @@ struct PipelineResult {
   // / 2 and (Var[x_A] + Var[x_B]) / 2, what the estimated error measured the denoiser's error
   // with (empty when it used SURE; docs/error_estimate.md, "Cross-validation").
   Image cv_square, cv_variance;
+  // A linear denoiser's (Denoiser::linear) (1/2 - w_A w_B) (y_A - y_B)^2, w_h the halves' shares of
+  // the samples: how much more variance the half runs have than the full run (empty otherwise;
+  // docs/error_estimate.md, "A linear denoiser").
+  Image cv_spread;
   // The estimated error (docs/error_estimate.md): the mean over pixels and RGB of
   // (1-a) Var[x] + a m - a (1-a) (y-x)^2 with m the denoiser's error (cross-validated between the
   // halves, else SURE), floored at the mean of (1-a)^2 Var[x]; the mean of Var[x] when nothing

@@ -37,6 +37,10 @@ class Denoiser {
   // True for a denoiser that must see the whole frame at once (a global solve): the pipeline runs
   // it once over the full image before the tiled stages, and the tiles read y from that run.
   virtual bool whole_frame() const { return false; }
+  // True for a linear filter whose weights do not depend on the data (y = K x, a fixed K): the
+  // error estimate then splits its error into bias and variance exactly from the two halves' runs
+  // (docs/error_estimate.md, "A linear denoiser").
+  virtual bool linear() const { return false; }
   // Computes y (and dydx when non-null and supported) over `out`, which must lie in the image.
   // y and dydx must be 3-channel buffers covering `out`.
   virtual void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const = 0;

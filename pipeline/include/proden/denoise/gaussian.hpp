@@ -13,6 +13,7 @@ class GaussianDenoiser final : public Denoiser {
   std::string name() const override { return "gaussian"; }
   int radius() const override { return radius_; }
   bool has_derivative() const override { return true; }
+  bool linear() const override { return true; }
   void denoise(const DenoiseInputs& in, const Rect& out, Buffer& y, Buffer* dydx) const override;
 
  private:
