@@ -4,6 +4,7 @@
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <cstdint>
 #include <random>
 
 #include "proden/accumulator.hpp"
@@ -435,6 +436,25 @@ TEST_CASE("estimate_error: NFOR, which reads the halves, is cross-validated on t
   CHECK_FALSE(meets_equivalent_spp(r1.estimated_error, 1e-9));
 }
 
+// A committed pipeline with the Gaussian, the linear denoiser, and a frame of `passes` noisy
+// passes of `truth` (spp each) accumulated as it asks.
+struct LinearRun {
+  Pipeline pipe;
+  FrameEstimate frame;
+};
+LinearRun gaussian_frame(const Image& truth, int passes, std::uint64_t seed, double spp) {
+  std::mt19937_64 rng(seed);
+  PipelineOptions o;
+  o.denoiser = "gaussian";
+  LinearRun run{Pipeline(o), {}};
+  run.pipe.commit();
+  FrameAccumulator acc;
+  for (int k = 0; k < passes; ++k)
+    acc.add(noisy_pass(truth, rng, 0.25f, spp), "p" + std::to_string(k));
+  run.frame = acc.estimate(run.pipe.estimate_options());
+  return run;
+}
+
 TEST_CASE("estimate_error: a linear denoiser's error is split into bias and variance exactly",
           "[error_estimate][cross_validation]") {
   // A Gaussian blur over a fine texture: its error is nearly all bias, which the full frame's
@@ -445,15 +465,9 @@ TEST_CASE("estimate_error: a linear denoiser's error is split into bias and vari
   // cvsquare - cvvariance - cvspread measures the full run's error itself.
   const int W = 128, H = 128;
   const Image truth = textured_truth(W, H);
-  std::mt19937_64 rng(41);
-  PipelineOptions o;
-  o.denoiser = "gaussian";
-  Pipeline pipe(o);
-  pipe.commit();
-  FrameAccumulator acc;
-  for (int k = 0; k < 8; ++k) acc.add(noisy_pass(truth, rng, 0.25f, 2), "p" + std::to_string(k));
+  LinearRun run = gaussian_frame(truth, 8, 41, 2);
   ErrorContext ctx{.spp = 16, .passes = 8, .noise_scope = NoiseScope::pixel};
-  const PipelineResult r = pipe.execute(acc.estimate(pipe.estimate_options()), ctx);
+  const PipelineResult r = run.pipe.execute(run.frame, ctx);
   REQUIRE(r.estimated_error.source == "variance+cross-validation");
   REQUIRE_FALSE(r.cv_spread.empty());
   double m_true = 0, m_split = 0, m_bracket = 0;
@@ -481,9 +495,7 @@ TEST_CASE("estimate_error: a linear denoiser's error is split into bias and vari
   CHECK(listed);
   Pipeline nlm;
   nlm.commit();
-  FrameAccumulator acc2;
-  for (int k = 0; k < 4; ++k) acc2.add(noisy_pass(truth, rng, 0.25f, 2), "p" + std::to_string(k));
-  const PipelineResult rn = nlm.execute(acc2.estimate(nlm.estimate_options()), ctx);
+  const PipelineResult rn = nlm.execute(run.frame, ctx);
   CHECK_FALSE(rn.cv_square.empty());
   CHECK(rn.cv_spread.empty());
 }
@@ -494,17 +506,11 @@ TEST_CASE("estimate_error: the spread weighs halves of unequal samples by their 
   // runs' summed variance, not 1/4: cvspread = (1/2 - w_A w_B) (y_A - y_B)^2, element by element.
   const int W = 40, H = 24;
   const Image truth = textured_truth(W, H);
-  std::mt19937_64 rng(43);
-  PipelineOptions o;
-  o.denoiser = "gaussian";
-  Pipeline pipe(o);
-  pipe.commit();
-  FrameAccumulator acc;
-  for (int k = 0; k < 3; ++k) acc.add(noisy_pass(truth, rng, 0.25f, 4), "p" + std::to_string(k));
-  const FrameEstimate f = acc.estimate(pipe.estimate_options());
-  const PipelineResult r = pipe.execute(f, {.spp = 12, .passes = 3});
+  LinearRun run = gaussian_frame(truth, 3, 43, 4);
+  const FrameEstimate& f = run.frame;
+  const PipelineResult r = run.pipe.execute(f, {.spp = 12, .passes = 3});
   REQUIRE_FALSE(r.cv_spread.empty());
-  const GaussianDenoiser blur(o.gaussian_sigma);
+  const GaussianDenoiser blur(run.pipe.options().gaussian_sigma);
   const Rect all{0, 0, W, H};
   std::array<Buffer, 2> y;
   for (std::size_t h = 0; h < 2; ++h) {
