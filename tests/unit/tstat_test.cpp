@@ -371,7 +371,8 @@ TEST_CASE("t_rescale keeps alpha by the curve at each pixel's statistic and dof"
         const bool no_dof = tmax <= curve.dof_free_t();
         (no_dof ? low : high) += 1;
         // Skipped only by the tolerance: above the first node's exact bound.
-        skipped += no_dof && tmax > p.t0 - 6.0 / p.slope ? 1 : 0;  // the first node's t at dof inf
+        // The first node's t at infinite dof is its u, max(0, t0 - 6 / slope) (the curve's grid).
+        skipped += no_dof && tmax > std::max(0.0, p.t0 - 6.0 / p.slope) ? 1 : 0;
         for (int c = 0; c < 3; ++c) {
           INFO("pixel " << xx << "," << y << " t " << st.t[c] << " dof " << st.dof);
           const float want = static_cast<float>(alpha.at(xx, y, c) * keep[c]);
