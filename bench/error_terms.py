@@ -25,7 +25,6 @@ import sys
 import tempfile
 
 import numpy as np
-from scipy.ndimage import uniform_filter
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from calibration import CONFIGS, LEVELS, SCENES, read_rgb, reference  # noqa: E402
@@ -43,7 +42,14 @@ def layer(path, name):
 
 
 def box(a):
-    return uniform_filter(a, size=(WINDOW, WINDOW, 1), mode="nearest")
+    """Mean over the WINDOW x WINDOW window of each pixel, edges replicated (as box_mean in
+    pipeline/src/error_estimate.cpp): running sums along each axis."""
+    r = WINDOW // 2
+    p = np.pad(a, ((r, r), (r, r), (0, 0)), mode="edge")
+    c = np.cumsum(np.pad(p, ((1, 0), (0, 0), (0, 0))), axis=0)
+    rows = c[WINDOW:] - c[:-WINDOW]
+    c = np.cumsum(np.pad(rows, ((0, 0), (1, 0), (0, 0))), axis=1)
+    return (c[:, WINDOW:] - c[:, :-WINDOW]) / (WINDOW * WINDOW)
 
 
 def cell(proden, passes, no_features, denoiser, ref, ref_var, out):
