@@ -3,6 +3,10 @@
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include <signal.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 #include <CLI/CLI.hpp>
 #include <memory>
 
@@ -15,6 +19,23 @@
 #include "thread_limit.hpp"
 
 using namespace proden;
+
+namespace {
+
+constexpr unsigned long kStopSignalMask = (1UL << (SIGTERM - 1)) | (1UL << (SIGINT - 1));
+
+// Blocks SIGTERM and SIGINT before any shared library's constructor runs (.preinit_array runs
+// first), so every thread a library starts (OpenBLAS starts its pool when it is loaded) inherits
+// the mask and `proden serve` takes its stop signals on one thread, from a signalfd
+// (daemon/serve.cpp). The raw system call: this may run before a sanitizer's runtime has set up
+// its interceptors. main() unblocks them again for the other commands.
+extern "C" void proden_block_stop_signals(int, char**, char**) {
+  ::syscall(SYS_rt_sigprocmask, SIG_BLOCK, &kStopSignalMask, nullptr, sizeof kStopSignalMask);
+}
+[[gnu::section(".preinit_array"),
+  gnu::used]] void (*const block_early)(int, char**, char**) = proden_block_stop_signals;
+
+}  // namespace
 
 int main(int argc, char** argv) {
   auto logger = spdlog::stderr_color_mt("proden");
@@ -79,6 +100,8 @@ int main(int argc, char** argv) {
     const int rc = app.exit(err);
     return rc == 0 ? cli::kOk : cli::kUsage;
   }
+  // Not `serve` (whose callback ran the daemon and exited): Ctrl-C and SIGTERM end the command.
+  ::syscall(SYS_rt_sigprocmask, SIG_UNBLOCK, &kStopSignalMask, nullptr, sizeof kStopSignalMask);
   if (verbose) spdlog::set_level(spdlog::level::debug);
   den.finish();
   const auto r = io::parse_renderer(renderer).value_or(io::Renderer::automatic);

@@ -6,6 +6,7 @@
 #include <spdlog/spdlog.h>
 #include <sys/file.h>
 #include <sys/resource.h>
+#include <sys/signalfd.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -35,28 +36,45 @@ namespace fs = std::filesystem;
 
 namespace {
 
-// SIGTERM/SIGINT arrive through a pipe. A handler, not sigwait alone: libraries start threads
-// before main() (OpenBLAS starts its pool when it is loaded) that never block these signals, and
-// a signal the kernel hands one of them would kill the daemon without draining. With a handler
-// installed, whichever thread takes the signal writes its number to the pipe. The write end is
-// atomic: the handler may run on a thread started before main() set it.
-int g_signal_read = -1;
-std::atomic<int> g_signal_write{-1};
+// SIGTERM/SIGINT are read from a signalfd by the thread that waits in run_serve(). Every thread
+// blocks them, so the kernel keeps a stop signal pending for that fd instead of running a handler
+// on whichever thread it picks; the executable blocks them before any library starts a thread
+// (block_stop_signals_early() in cli/main.cpp: OpenBLAS starts its pool when it is loaded).
+// Under ThreadSanitizer, which defers a handler to the thread's next intercepted call, a handler
+// could lose a SIGTERM sent just after start-up: the daemon then never drained (1 stop in 40-75,
+// 2026-12-07). The handler stays as the fallback for a thread that did not inherit the mask (an
+// executable that does not block early): it writes the signal's number to the drain pipe.
+int g_signal_fd = -1;
+int g_drain_read = -1;
+std::atomic<int> g_drain_write{-1};
 static_assert(std::atomic<int>::is_always_lock_free);  // async-signal-safe
 
 extern "C" void on_stop_signal(int sig) {
   const int saved = errno;
   const unsigned char c = static_cast<unsigned char>(sig);
-  [[maybe_unused]] const ssize_t n = ::write(g_signal_write.load(), &c, 1);
+  [[maybe_unused]] const ssize_t n = ::write(g_drain_write.load(), &c, 1);
   errno = saved;
 }
 
-// Installs the handler for SIGTERM and SIGINT; false when the pipe cannot be made.
+sigset_t stop_signals() {
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGTERM);
+  sigaddset(&set, SIGINT);
+  return set;
+}
+
+// Blocks SIGTERM/SIGINT on this thread (the daemon's threads inherit it), opens the signalfd and
+// the drain pipe and installs the fallback handler; false when the fd or pipe cannot be made.
 bool catch_stop_signals() {
+  const sigset_t set = stop_signals();
+  ::pthread_sigmask(SIG_BLOCK, &set, nullptr);
   int fds[2];
   if (::pipe2(fds, O_CLOEXEC | O_NONBLOCK) != 0) return false;
-  g_signal_read = fds[0];
-  g_signal_write.store(fds[1]);
+  g_drain_read = fds[0];
+  g_drain_write.store(fds[1]);
+  g_signal_fd = ::signalfd(-1, &set, SFD_CLOEXEC | SFD_NONBLOCK);
+  if (g_signal_fd < 0) return false;
   struct sigaction sa {};
   sa.sa_handler = on_stop_signal;
   sigemptyset(&sa.sa_mask);
@@ -69,16 +87,20 @@ bool catch_stop_signals() {
 // Wakes wait_stop_signal() with 0, no signal's number: the drain has ended.
 void notify_drained() {
   const unsigned char c = 0;
-  [[maybe_unused]] const ssize_t n = ::write(g_signal_write.load(), &c, 1);
+  [[maybe_unused]] const ssize_t n = ::write(g_drain_write.load(), &c, 1);
 }
 
 // Blocks until a stop signal was taken (returns its number) or notify_drained() ran (0).
 int wait_stop_signal() {
   for (;;) {
-    pollfd p{g_signal_read, POLLIN, 0};
-    if (::poll(&p, 1, -1) <= 0) continue;  // EINTR: the handler ran on this thread
+    pollfd p[2] = {{g_signal_fd, POLLIN, 0}, {g_drain_read, POLLIN, 0}};
+    if (::poll(p, 2, -1) <= 0) continue;  // EINTR
+    signalfd_siginfo info{};
+    if ((p[0].revents & POLLIN) && ::read(g_signal_fd, &info, sizeof info) == sizeof info) {
+      return static_cast<int>(info.ssi_signo);
+    }
     unsigned char c = 0;
-    if (::read(g_signal_read, &c, 1) == 1) return c;
+    if ((p[1].revents & POLLIN) && ::read(g_drain_read, &c, 1) == 1) return c;
   }
 }
 
@@ -199,18 +221,12 @@ int run_serve(Config c, const std::string& token, const std::string& large_block
     rl.rlim_cur = rl.rlim_max;
     ::setrlimit(RLIMIT_NOFILE, &rl);
   }
-  // The stop signals reach the handler (catch_stop_signals); the daemon's own threads block
-  // them (they inherit this mask) so that no worker or I/O call is interrupted, and this thread
-  // unblocks them once it waits.
+  // The stop signals are blocked on every thread and read from a signalfd (catch_stop_signals),
+  // so no worker or I/O call is interrupted and this thread takes them once it waits.
   if (!catch_stop_signals()) {
-    spdlog::error("cannot make the signal pipe: {}", std::strerror(errno));
+    spdlog::error("cannot set up the stop signals: {}", std::strerror(errno));
     return 1;
   }
-  sigset_t set;
-  sigemptyset(&set);
-  sigaddset(&set, SIGTERM);
-  sigaddset(&set, SIGINT);
-  ::pthread_sigmask(SIG_BLOCK, &set, nullptr);
   ::signal(SIGPIPE, SIG_IGN);
 
   // Frame-sized planes (up to 32 MiB: 1080p and below) stay in the heap while the daemon is busy,
@@ -234,12 +250,6 @@ int run_serve(Config c, const std::string& token, const std::string& large_block
     return 1;
   }
   server.run(c.io_threads);
-  // Unblocked before the daemon says it listens: a stop signal sent as soon as that line appears
-  // is then this thread's to take (it waits for one next), not a library thread's. Under
-  // ThreadSanitizer, which defers signal handlers to the thread's next intercepted call, a
-  // SIGTERM sent on the start-up line once went unanswered for 30 s (the service test
-  // StartupLogTest, 2026-12-07).
-  ::pthread_sigmask(SIG_UNBLOCK, &set, nullptr);
   const std::string host = c.bind.find(':') != std::string::npos ? "[" + c.bind + "]" : c.bind;
   std::printf("listening on http://%s:%u\n", host.c_str(), port);
   std::fflush(stdout);
@@ -266,6 +276,8 @@ int run_serve(Config c, const std::string& token, const std::string& large_block
     // Dies of the signal (its default action), as a process that does not drain would: a shell
     // or systemd sees 128 + the signal, and nothing runs on the way out.
     ::signal(second, SIG_DFL);
+    const sigset_t set = stop_signals();
+    ::pthread_sigmask(SIG_UNBLOCK, &set, nullptr);
     ::raise(second);
     ::_exit(128 + second);  // not reached
   }
