@@ -39,7 +39,7 @@ namespace {
 // SIGTERM/SIGINT are read from a signalfd by the thread that waits in run_serve(). Every thread
 // blocks them, so the kernel keeps a stop signal pending for that fd instead of running a handler
 // on whichever thread it picks; the executable blocks them before any library starts a thread
-// (block_stop_signals_early() in cli/main.cpp: OpenBLAS starts its pool when it is loaded).
+// (proden_block_stop_signals() in cli/main.cpp: OpenBLAS starts its pool when it is loaded).
 // Under ThreadSanitizer, which defers a handler to the thread's next intercepted call, a handler
 // could lose a SIGTERM sent just after start-up: the daemon then never drained (1 stop in 40-75,
 // 2026-12-07). The handler stays as the fallback for a thread that did not inherit the mask (an
