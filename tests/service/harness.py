@@ -113,7 +113,7 @@ class Daemon:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             rc = self.proc.wait()
-            raise AssertionError("daemon did not stop on %s" % sig)
+            raise AssertionError("daemon did not stop on %s; log:\n%s" % (sig, self.read_log()))
         finally:
             self.proc.stdout.close()
             self.logf.close()
