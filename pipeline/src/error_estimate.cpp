@@ -367,6 +367,15 @@ EstimatedError estimate_error(const ErrorInputs& in, const ErrorContext& ctx) {
   const double top =
       std::max(eq(lo, -zq * se_r * lo), eq(hi, std::isfinite(hi) ? -zq * se_r * hi : 0.0));
   if (std::isfinite(top)) e.equivalent_spp_high = top;
+
+  // The model's own error (kModelBand), beyond the statistics above.
+  e.model_band = kModelBand;
+  e.mse_low /= kModelBand;
+  e.relmse_low /= kModelBand;
+  e.equivalent_spp_low /= kModelBand;
+  for (std::optional<double>* h : {&e.mse_high, &e.relmse_high, &e.equivalent_spp_high}) {
+    if (*h) **h *= kModelBand;
+  }
   return e;
 }
 

@@ -45,7 +45,8 @@ json to_json(const EstimatedError& e) {
           {"consistent", e.consistent},
           {"noise_scope", to_string(e.noise_scope)},
           {"source", e.source},
-          {"calibration", e.calibration}};
+          {"calibration", e.calibration},
+          {"model_band", e.model_band}};
 }
 
 EstimatedError estimated_error_from_json(const json& j) {
@@ -70,6 +71,7 @@ EstimatedError estimated_error_from_json(const json& j) {
       j.at("noise_scope").get<std::string>() == "pixel" ? NoiseScope::pixel : NoiseScope::frame;
   e.source = j.at("source").get<std::string>();
   e.calibration = j.value("calibration", "none");
+  e.model_band = j.value("model_band", 1.0);  // states written before the band: none
   return e;
 }
 

@@ -36,8 +36,11 @@ MIN_PASSES = 3
 # Worth 1.5x the samples of min_passes plain passes: met mid-array by the denoised frame of this
 # scene (with the relMSE weights no longer biased low it converges at ~10 of 12 passes at 2x, too
 # close to the array's end to show the cut), and not by the render alone at min_passes
-# (equivalent_spp of plain MC = its spp, and the decision reads the interval's low end).
-TARGET_SPP = 1.5 * MIN_PASSES * SPP
+# (equivalent_spp of plain MC = its spp, and the decision reads the interval's low end). Divided
+# by the model band (docs/error_estimate.md: the low end is the statistics' over 1.25), so that
+# the stop falls where it fell before the band.
+MODEL_BAND = 1.25
+TARGET_SPP = 1.5 * MIN_PASSES * SPP / MODEL_BAND
 
 
 def make_blend(path):
