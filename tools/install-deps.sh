@@ -8,7 +8,7 @@ packages=(
   cmake ninja-build g++ make pkg-config
   clang libclang-rt-14-dev                                  # make fuzz, make fuzz-smoke (libFuzzer)
   libopenimageio-dev openimageio-tools libopencv-core-dev   # OIIO's CMake target names opencv4 headers
-  libopenexr-dev libimath-dev zlib1g-dev                   # zlib: EXR ZIP chunks (io/src/exr_chunks.cpp)
+  libopenexr-dev libimath-dev libdeflate-dev               # libdeflate: EXR ZIP chunks (io/src/exr_chunks.cpp)
   libboost-dev libboost-system-dev                          # Beast (daemon), Math (t-test quantiles)
   nlohmann-json3-dev libspdlog-dev libfmt-dev catch2 libcli11-dev libtbb-dev
   libxxhash-dev                                             # state checksums (XXH3)

@@ -1,14 +1,18 @@
 #include "exr_chunks.hpp"
 
 #include <Imath/half.h>
+#include <libdeflate.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
-#include <zlib.h>
 
 #include <algorithm>
 #include <bit>
 #include <cstring>
+#include <memory>
 #include <stdexcept>
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
 
 #include "fail.hpp"
 
@@ -34,27 +38,69 @@ std::vector<std::size_t> line_layout(const HeaderPart& part) {
   return at;
 }
 
-// The scratch of one thread: a chunk as stored, inflated, and reordered.
-struct Scratch {
-  std::vector<unsigned char> packed, inflated, bytes;
+struct FreeDecompressor {
+  void operator()(libdeflate_decompressor* d) const { libdeflate_free_decompressor(d); }
 };
 
-// Undoes ZIP's two steps on `n` inflated bytes (OpenEXR's file layout, "ZIP compression"): each
-// byte was stored as the difference from the one before plus 128, and the bytes were split into
-// the even-indexed ones followed by the odd-indexed ones.
-void unpredict(unsigned char* t, std::size_t n, unsigned char* out) {
-  for (std::size_t i = 1; i < n; ++i) t[i] = static_cast<unsigned char>(t[i - 1] + t[i] - 128);
-  const unsigned char* a = t;
-  const unsigned char* b = t + (n + 1) / 2;
-  std::size_t i = 0;
-  for (; i + 1 < n; i += 2) {
-    out[i] = *a++;
-    out[i + 1] = *b++;
+// The scratch of one thread: a chunk as stored, inflated, and reordered, and its decompressor.
+struct Scratch {
+  std::vector<unsigned char> packed, inflated, bytes;
+  std::unique_ptr<libdeflate_decompressor, FreeDecompressor> inflater;
+};
+
+const char* inflate_error(libdeflate_result r) {
+  switch (r) {
+    case LIBDEFLATE_SHORT_OUTPUT:
+      return "inflates to fewer bytes than its lines hold";
+    case LIBDEFLATE_INSUFFICIENT_SPACE:
+      return "inflates to more bytes than its lines hold";
+    default:
+      return "does not inflate (not a valid zlib stream, or its checksum differs)";
   }
-  if (i < n) out[i] = *a;
 }
 
 }  // namespace
+
+void undo_zip_predictor(unsigned char* t, std::size_t n, unsigned char* out) {
+  // The running sum t[i] = t[i-1] + t[i] - 128 (mod 256) from i = 1.
+  std::size_t i = 1;
+#ifdef __SSE2__
+  // 16 bytes at a time: the block's own prefix sum in four shifted adds, plus the byte before
+  // the block broadcast to every lane.
+  const __m128i bias = _mm_set1_epi8(static_cast<char>(0x80));
+  __m128i carry = _mm_set1_epi8(static_cast<char>(n > 0 ? t[0] : 0));
+  for (; i + 16 <= n; i += 16) {
+    auto* p = reinterpret_cast<__m128i*>(t + i);
+    __m128i v = _mm_sub_epi8(_mm_loadu_si128(p), bias);
+    v = _mm_add_epi8(v, _mm_slli_si128(v, 1));
+    v = _mm_add_epi8(v, _mm_slli_si128(v, 2));
+    v = _mm_add_epi8(v, _mm_slli_si128(v, 4));
+    v = _mm_add_epi8(v, _mm_slli_si128(v, 8));
+    v = _mm_add_epi8(v, carry);
+    _mm_storeu_si128(p, v);
+    const __m128i hi = _mm_unpackhi_epi8(v, v);  // 8 8 9 9 .. 15 15
+    carry = _mm_shuffle_epi32(_mm_unpackhi_epi16(hi, hi), _MM_SHUFFLE(3, 3, 3, 3));  // 15 x16
+  }
+#endif
+  for (; i < n; ++i) t[i] = static_cast<unsigned char>(t[i - 1] + t[i] - 128);
+  // The even-indexed bytes were stored first, then the odd-indexed ones.
+  const unsigned char* a = t;
+  const unsigned char* b = t + (n + 1) / 2;
+  std::size_t k = 0;
+#ifdef __SSE2__
+  for (; k + 32 <= n; k += 32) {
+    const __m128i x = _mm_loadu_si128(reinterpret_cast<const __m128i*>(a + k / 2));
+    const __m128i y = _mm_loadu_si128(reinterpret_cast<const __m128i*>(b + k / 2));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + k), _mm_unpacklo_epi8(x, y));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + k + 16), _mm_unpackhi_epi8(x, y));
+  }
+#endif
+  for (; k + 1 < n; k += 2) {
+    out[k] = a[k / 2];
+    out[k + 1] = b[k / 2];
+  }
+  if (k < n) out[k] = a[k / 2];
+}
 
 bool chunk_decodes(const HeaderSummary& header) {
   if (header.format != FileFormat::exr || header.parts.size() != 1) return false;
@@ -126,15 +172,16 @@ void decode_chunks(const ByteSource& src, const HeaderPart& part, const std::str
     if (static_cast<std::size_t>(size) < expected) {
       s.inflated.resize(expected);
       s.bytes.resize(expected);
-      uLongf got = static_cast<uLongf>(expected);
-      const int rc =
-          ::uncompress(s.inflated.data(), &got, s.packed.data(), static_cast<uLong>(size));
-      if (rc != Z_OK || got != expected) {
-        corrupt(rc == Z_OK ? "inflates to " + std::to_string(got) + " bytes, not " +
-                                 std::to_string(expected)
-                           : "does not inflate (zlib error " + std::to_string(rc) + ")");
+      if (!s.inflater) {
+        s.inflater.reset(libdeflate_alloc_decompressor());
+        if (!s.inflater) throw std::bad_alloc();
       }
-      unpredict(s.inflated.data(), expected, s.bytes.data());
+      // The zlib stream must inflate to exactly the chunk's lines (a NULL actual size makes
+      // fewer bytes an error too); its Adler-32 is checked.
+      const libdeflate_result r = libdeflate_zlib_decompress(
+          s.inflater.get(), s.packed.data(), s.packed.size(), s.inflated.data(), expected, nullptr);
+      if (r != LIBDEFLATE_SUCCESS) corrupt(inflate_error(r));
+      undo_zip_predictor(s.inflated.data(), expected, s.bytes.data());
       bytes = s.bytes.data();
     }
     for (int l = 0; l < lines; ++l) {

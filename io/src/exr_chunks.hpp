@@ -1,11 +1,12 @@
 // Decodes the pixels of a plain single-part scanline OpenEXR file compressed with NONE, ZIPS or
-// ZIP (what Blender and POV-Ray write) straight from its chunks: zlib inflates each chunk, ZIP's
-// byte predictor and interleave are undone as the OpenEXR file layout specifies, and each wanted
+// ZIP (what Blender and POV-Ray write) straight from its chunks: libdeflate inflates each chunk
+// (the inflater OpenEXR itself adopted in 3.2; 2.2x zlib's speed on Cycles passes), ZIP's byte
+// predictor and interleave are undone as the OpenEXR file layout specifies, and each wanted
 // channel's line is copied into its plane. The same floats as OpenEXR 3.1's C++ library, whose
 // conversion of every float by an out-of-line per-byte call was most of a pass read
-// (bench/RESULTS.md, "Decoding ZIP chunks with zlib"). The header, the offset table and every
-// chunk header were checked by the header walk (image_header.hpp); each chunk is checked again
-// here against the bytes it must inflate to.
+// (bench/RESULTS.md, "Decoding ZIP chunks with zlib", "Inflating with libdeflate"). The header, the
+// offset table and every chunk header were checked by the header walk (image_header.hpp); each
+// chunk is checked again here against the bytes it must inflate to.
 #pragma once
 
 #include <cstdint>
@@ -32,6 +33,13 @@ struct ChunkTarget {
   int channel = 0;
   float* plane = nullptr;
 };
+
+// Undoes ZIP's two steps on `n` inflated bytes `t` (OpenEXR's file layout, "ZIP compression"):
+// each byte was stored as the difference from the one before plus 128 (t is summed in place),
+// and the bytes were split into the even-indexed ones followed by the odd-indexed ones (`out`,
+// n bytes, gets them back in order). SSE2 where the build has it, the same bytes as the scalar
+// loops it ends with.
+void undo_zip_predictor(unsigned char* t, std::size_t n, unsigned char* out);
 
 // Decodes every chunk of the file's part into `targets` (a channel may appear more than once),
 // chunks in parallel. Throws proden::InputError (unreadable, naming `name`) for a chunk that is

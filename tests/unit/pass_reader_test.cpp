@@ -398,6 +398,30 @@ TEST_CASE("the chunk decoder reads chunks stored uncompressed and refuses corrup
   }
 }
 
+TEST_CASE("ZIP's predictor is undone as OpenEXR's file layout specifies", "[io][chunks]") {
+  // The reference, one byte at a time from the layout's description: a running sum of the stored
+  // differences less 128, then the even-indexed bytes (stored first) and the odd-indexed ones
+  // put back in turn. Lengths around the 16- and 32-byte blocks of the SSE2 path and its tails.
+  std::mt19937 rng(11);
+  for (const std::size_t n :
+       {std::size_t{1}, std::size_t{2}, std::size_t{15}, std::size_t{16}, std::size_t{17},
+        std::size_t{31}, std::size_t{32}, std::size_t{33}, std::size_t{47}, std::size_t{64},
+        std::size_t{65}, std::size_t{1000}, std::size_t{4097}}) {
+    INFO("n = " << n);
+    std::vector<unsigned char> stored(n);
+    for (auto& b : stored) b = static_cast<unsigned char>(rng());
+    std::vector<unsigned char> sum = stored, want(n);
+    for (std::size_t i = 1; i < n; ++i)
+      sum[i] = static_cast<unsigned char>(sum[i - 1] + sum[i] - 128);
+    for (std::size_t i = 0; i < n; ++i)
+      want[i] = i % 2 == 0 ? sum[i / 2] : sum[(n + 1) / 2 + i / 2];
+    std::vector<unsigned char> t = stored, got(n, 0xEE);
+    io::detail::undo_zip_predictor(t.data(), n, got.data());
+    REQUIRE(t == sum);
+    REQUIRE(got == want);
+  }
+}
+
 TEST_CASE("the chunk decoder's scratch counts against the read budget", "[io][chunks]") {
   // A chunk holds every channel of its lines, wanted or not: 63 channels of which the colour is
   // read. Each decoding thread holds three chunks' worth (stored, inflated, reordered).
