@@ -18,7 +18,7 @@
 
 namespace proden::io {
 
-// Who decodes an OpenEXR file's pixels. `automatic`: proden's chunk decoder (zlib, for plain
+// Who decodes an OpenEXR file's pixels. `automatic`: proden's chunk decoder (libdeflate, for plain
 // single-part scanline NONE/ZIPS/ZIP files with HALF and FLOAT channels: what Blender and POV-Ray
 // write) where it applies, OpenImageIO (OpenEXR's C++ library) elsewhere. `library`: OpenImageIO
 // for every file, the reference the tests and benchmarks compare against.
