@@ -1,5 +1,6 @@
 // Round trips of every supported input layout through the pass reader, and real renderer files.
 #include <OpenImageIO/imageio.h>
+#include <libdeflate.h>
 #include <catch2/catch.hpp>
 
 #include <cmath>
@@ -394,6 +395,62 @@ TEST_CASE("the chunk decoder reads chunks stored uncompressed and refuses corrup
     } catch (const InputError& e) {
       CHECK(e.kind() == InputErrorKind::unreadable);
       CHECK_THAT(std::string(e.what()), Contains("bad.exr"));
+    }
+  }
+}
+
+TEST_CASE("the chunk decoder says what is wrong with a chunk's zlib stream", "[io][chunks]") {
+  // Chunk 0 of a compressible file replaced by crafted zlib streams (libdeflate's compressor):
+  // one that inflates to exactly the chunk's lines (the control: read), one to fewer bytes, one
+  // to more, and one whose Adler-32 is off. Each bad one is refused as unreadable, naming the
+  // file, the chunk and what is wrong; the other chunks stay as written.
+  test::TempDir dir;
+  const int W = 64, H = 40;
+  Image ramp(W, H, 3);
+  for (std::size_t i = 0; i < ramp.data().size(); ++i) ramp.data()[i] = static_cast<float>(i % 97);
+  std::vector<io::NamedChannel> ch;
+  io::add_layer(ch, "", ramp, "RGB");
+  io::WriteOptions o;
+  o.compression = "zip";
+  const std::string f = dir.file("ramp.exr");
+  io::write_image(f, W, H, ch, o);
+  const auto good = file_bytes(f);
+  const auto h = walk(good, f);
+  REQUIRE(io::detail::chunk_decodes(h));
+  const std::uint64_t at = h.parts.front().chunk_offsets[0];
+  const std::uint64_t next = h.parts.front().chunk_offsets[1];
+  const std::size_t lines = 16 * W * 3 * 4;  // chunk 0: 16 lines of 3 float channels
+  libdeflate_compressor* c = libdeflate_alloc_compressor(6);
+  REQUIRE(c != nullptr);
+  const auto with_stream = [&](std::size_t n, bool bad_adler) {
+    std::vector<unsigned char> raw(n);
+    for (std::size_t i = 0; i < n; ++i) raw[i] = static_cast<unsigned char>(i % 7);
+    std::vector<unsigned char> z(libdeflate_zlib_compress_bound(c, n));
+    z.resize(libdeflate_zlib_compress(c, raw.data(), n, z.data(), z.size()));
+    REQUIRE(!z.empty());
+    if (bad_adler) z.back() ^= 1;
+    REQUIRE(8 + z.size() <= next - at);  // fits chunk 0's place
+    auto b = good;
+    const auto size = static_cast<std::int32_t>(z.size());
+    std::memcpy(b.data() + at + 4, &size, 4);
+    std::memcpy(b.data() + at + 8, z.data(), z.size());
+    return b;
+  };
+  const Pass control = io::read_pass(io::MemorySource(with_stream(lines, false)), "c.exr", {});
+  CHECK(control.width() == W);
+  const std::pair<std::vector<unsigned char>, std::string> bad[] = {
+      {with_stream(lines - 16, false), "chunk 0 inflates to fewer bytes"},
+      {with_stream(lines + 16, false), "chunk 0 inflates to more bytes"},
+      {with_stream(lines, true), "chunk 0 does not inflate"}};
+  libdeflate_free_compressor(c);
+  for (const auto& [bytes, why] : bad) {
+    INFO(why);
+    try {
+      (void)io::read_pass(io::MemorySource(bytes), "bad.exr", {});
+      FAIL("a corrupt chunk was read");
+    } catch (const InputError& e) {
+      CHECK(e.kind() == InputErrorKind::unreadable);
+      CHECK_THAT(std::string(e.what()), Contains("bad.exr") && Contains(why));
     }
   }
 }
