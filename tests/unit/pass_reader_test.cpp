@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <memory>
 #include <random>
 
 #include "../../io/src/exr_chunks.hpp"
@@ -41,6 +42,22 @@ std::string samples(const std::string& rel) {
 std::vector<std::uint8_t> file_bytes(const std::string& f) {
   std::ifstream in(f, std::ios::binary);
   return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+// `rgb` written to `f` as the only layer of a ZIP-compressed EXR (what the chunk decoder reads).
+void write_zip_rgb(const std::string& f, const Image& rgb) {
+  std::vector<io::NamedChannel> ch;
+  io::add_layer(ch, "", rgb, "RGB");
+  io::WriteOptions o;
+  o.compression = "zip";
+  io::write_image(f, rgb.width(), rgb.height(), ch, o);
+}
+
+// A W x H RGB image of the values i % 97: compresses well under ZIP.
+Image ramp97(int W, int H) {
+  Image ramp(W, H, 3);
+  for (std::size_t i = 0; i < ramp.data().size(); ++i) ramp.data()[i] = static_cast<float>(i % 97);
+  return ramp;
 }
 
 io::HeaderSummary walk(const std::vector<std::uint8_t>& bytes, const std::string& name) {
@@ -342,12 +359,8 @@ TEST_CASE("the chunk decoder reads chunks stored uncompressed and refuses corrup
         static_cast<std::uint32_t>((rng() & 0x807FFFFFu) | ((1u + rng() % 254u) << 23));
     std::memcpy(&v, &bits, 4);
   }
-  std::vector<io::NamedChannel> ch;
-  io::add_layer(ch, "", noise, "RGB");
-  io::WriteOptions o;
-  o.compression = "zip";
   const std::string f = dir.file("noise.exr");
-  io::write_image(f, W, H, ch, o);
+  write_zip_rgb(f, noise);
   auto bytes = file_bytes(f);
   const io::HeaderSummary h = walk(bytes, f);
   REQUIRE(io::detail::chunk_decodes(h));
@@ -368,14 +381,7 @@ TEST_CASE("the chunk decoder reads chunks stored uncompressed and refuses corrup
   // A compressed chunk with a byte changed inside its data, and one that claims more bytes than
   // its lines hold: refused as unreadable, naming the file.
   const std::string g = dir.file("flat.exr");
-  {
-    std::vector<io::NamedChannel> flat;
-    Image ramp(W, H, 3);
-    for (std::size_t i = 0; i < ramp.data().size(); ++i)
-      ramp.data()[i] = static_cast<float>(i % 97);
-    io::add_layer(flat, "", ramp, "RGB");
-    io::write_image(g, W, H, flat, o);
-  }
+  write_zip_rgb(g, ramp97(W, H));
   const auto good = file_bytes(g);
   const auto gh = walk(good, g);
   REQUIRE(io::detail::chunk_decodes(gh));
@@ -406,21 +412,17 @@ TEST_CASE("the chunk decoder says what is wrong with a chunk's zlib stream", "[i
   // file, the chunk and what is wrong; the other chunks stay as written.
   test::TempDir dir;
   const int W = 64, H = 40;
-  Image ramp(W, H, 3);
-  for (std::size_t i = 0; i < ramp.data().size(); ++i) ramp.data()[i] = static_cast<float>(i % 97);
-  std::vector<io::NamedChannel> ch;
-  io::add_layer(ch, "", ramp, "RGB");
-  io::WriteOptions o;
-  o.compression = "zip";
   const std::string f = dir.file("ramp.exr");
-  io::write_image(f, W, H, ch, o);
+  write_zip_rgb(f, ramp97(W, H));
   const auto good = file_bytes(f);
   const auto h = walk(good, f);
   REQUIRE(io::detail::chunk_decodes(h));
   const std::uint64_t at = h.parts.front().chunk_offsets[0];
   const std::uint64_t next = h.parts.front().chunk_offsets[1];
   const std::size_t lines = 16 * W * 3 * 4;  // chunk 0: 16 lines of 3 float channels
-  libdeflate_compressor* c = libdeflate_alloc_compressor(6);
+  const std::unique_ptr<libdeflate_compressor, void (*)(libdeflate_compressor*)> compressor(
+      libdeflate_alloc_compressor(6), libdeflate_free_compressor);
+  libdeflate_compressor* c = compressor.get();
   REQUIRE(c != nullptr);
   const auto with_stream = [&](std::size_t n, bool bad_adler) {
     std::vector<unsigned char> raw(n);
@@ -442,7 +444,6 @@ TEST_CASE("the chunk decoder says what is wrong with a chunk's zlib stream", "[i
       {with_stream(lines - 16, false), "chunk 0 inflates to fewer bytes"},
       {with_stream(lines + 16, false), "chunk 0 inflates to more bytes"},
       {with_stream(lines, true), "chunk 0 does not inflate"}};
-  libdeflate_free_compressor(c);
   for (const auto& [bytes, why] : bad) {
     INFO(why);
     try {
